@@ -1,0 +1,109 @@
+"""Safe output files: never overwrite an input, never leave a half-written file that looks done.
+
+Every writer in the package goes through :func:`atomic_output`: the data are written to a hidden
+``.NAME.XXXX.partial`` file beside the destination and renamed over it only once complete, so an
+interrupted run (Ctrl-C, a crash, a kill) leaves at most a ``.partial`` file, never a truncated
+file under the final name.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+
+from .errors import OutputError
+
+__all__ = ["atomic_output", "check_output_path", "PARTIAL_SUFFIX"]
+
+PARTIAL_SUFFIX = ".partial"
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output_path(
+    dest: str | os.PathLike, *, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = ()
+) -> Path:
+    """Refuse an output path that is an input, a folder, or an existing file.
+
+    Parameters
+    ----------
+    dest : path-like
+        Where the output will be written.
+    overwrite : bool
+        Allow replacing an existing file at ``dest`` (never an input).
+    inputs : iterable of path-like
+        Files the run reads; ``dest`` may not resolve to any of them, whatever ``overwrite`` says.
+
+    Returns
+    -------
+    Path
+        ``dest`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    OutputError
+        If ``dest`` is an input, a folder, or exists and ``overwrite`` is false.
+    """
+    dest = Path(dest)
+    for src in inputs:
+        src = Path(src)
+        if dest.resolve() == src.resolve() or _same_file(dest, src):
+            raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
+    if dest.is_dir():
+        raise OutputError(f"{dest}: output path is a folder; give a file name")
+    if dest.exists() and not overwrite:
+        raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
+    return dest
+
+
+@contextmanager
+def atomic_output(
+    dest: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> Iterator[Path]:
+    """Yield a temporary path beside ``dest``; rename it to ``dest`` when the block succeeds.
+
+    Missing parent folders are created. On any exception (including ``KeyboardInterrupt``) the
+    temporary file is deleted and ``dest`` is left as it was.
+
+    Parameters
+    ----------
+    dest : path-like
+        Final output path.
+    overwrite, inputs
+        As for :func:`check_output_path`.
+
+    Yields
+    ------
+    Path
+        The temporary file to write (it exists, empty). Writers that infer the format from the
+        file name (ffmpeg) must be told the format explicitly: the name ends in ``.partial``.
+    """
+    dest = check_output_path(dest, overwrite=overwrite, inputs=inputs)
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent)
+    except OSError as exc:
+        raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        # Re-check: another process may have created dest while we were writing.
+        if dest.exists() and not overwrite:
+            raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
+        os.replace(tmp, dest)
+    except BaseException:
+        with suppress(OSError):
+            tmp.unlink()
+        raise
