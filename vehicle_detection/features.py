@@ -216,13 +216,30 @@ def convert_color(image: np.ndarray, color_space: str) -> np.ndarray:
     return cv2.cvtColor(flat, _CV2_CODES[color_space]).reshape(image.shape)
 
 
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _bin_spatial_batch(images, size, out):
+    n, h, w, c = images.shape
+    fy = h // size
+    fx = w // size
+    inv = 1.0 / (fy * fx)
+    for i in numba.prange(n):
+        for by in range(size):
+            for bx in range(size):
+                for ch in range(c):
+                    s = 0
+                    for y in range(by * fy, (by + 1) * fy):
+                        for x in range(bx * fx, (bx + 1) * fx):
+                            s += images[i, y, x, ch]
+                    out[i, (by * size + bx) * c + ch] = s * inv
+
+
 def bin_spatial(image: np.ndarray, size: int) -> np.ndarray:
     """Spatially binned colours: the mean of each ``f x f`` block, ``f = side // size``.
 
     Parameters
     ----------
     image : ndarray of uint8, shape (N, H, W, 3) or (H, W, 3)
-        Square patches with ``H == W`` divisible by ``size``.
+        Patches whose height and width are divisible by ``size``.
     size : int
         Output side.
 
@@ -232,14 +249,27 @@ def bin_spatial(image: np.ndarray, size: int) -> np.ndarray:
         Block means in row-major ``(y, x, channel)`` order.
     """
     single = image.ndim == 3
-    batch = image[None] if single else image
+    batch = np.ascontiguousarray(image[None] if single else image)
     n, h, w, c = batch.shape
     if h % size or w % size:
         raise ValueError(f"patch of {h}x{w} cannot be binned to {size}x{size}")
-    fy, fx = h // size, w // size
-    out = batch.reshape(n, size, fy, size, fx, c).mean(axis=(2, 4), dtype=np.float32)
-    out = out.reshape(n, -1)
+    out = np.empty((n, size * size * c), np.float32)
+    if n:
+        _bin_spatial_batch(batch, size, out)
     return out[0] if single else out
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _histogram_batch(images, bins, out):
+    n, h, w, c = images.shape
+    for i in numba.prange(n):
+        for ch in range(c):
+            for b in range(bins):
+                out[i, ch * bins + b] = 0.0
+        for y in range(h):
+            for x in range(w):
+                for ch in range(c):
+                    out[i, ch * bins + (np.int32(images[i, y, x, ch]) * bins) // 256] += 1.0
 
 
 def color_histogram(image: np.ndarray, bins: int) -> np.ndarray:
@@ -258,13 +288,11 @@ def color_histogram(image: np.ndarray, bins: int) -> np.ndarray:
         Pixel counts, channel 0's bins first.
     """
     single = image.ndim == 3
-    batch = image[None] if single else image
-    n = batch.shape[0]
-    idx = (batch.reshape(n, -1, 3).astype(np.int32) * bins) // 256  # (N, P, 3)
-    idx += np.arange(3, dtype=np.int32) * bins
-    idx += (np.arange(n, dtype=np.int32) * 3 * bins)[:, None, None]
-    counts = np.bincount(idx.ravel(), minlength=n * 3 * bins).astype(np.float32).reshape(n, 3 * bins)
-    return counts[0] if single else counts
+    batch = np.ascontiguousarray(image[None] if single else image)
+    out = np.empty((batch.shape[0], batch.shape[3] * bins), np.float32)
+    if len(batch):
+        _histogram_batch(batch, bins, out)
+    return out[0] if single else out
 
 
 # --- HOG ---------------------------------------------------------------------------------------

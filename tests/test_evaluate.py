@@ -1,0 +1,539 @@
+"""Tests of vehicle_detection.evaluate: IoU, matching, annotation loading and scores.
+
+Expected values are worked out by hand in the comments beside them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from itertools import product
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vehicle_detection.errors import InputError
+from vehicle_detection.evaluate import (
+    Annotations,
+    FrameLabels,
+    Scores,
+    box_iou,
+    evaluate_detections,
+    load_annotations,
+    match_frame,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _data_dir() -> Path:
+    env = os.environ.get("VEHICLE_DETECTION_DATA")
+    return Path(env) if env else REPO.parent / "shared" / "data"
+
+
+CLIP_A = _data_dir() / "annotations" / "project_video_clip_A.json"
+needs_clip_a = pytest.mark.skipif(
+    not CLIP_A.is_file(),
+    reason=f"shared data not found at {CLIP_A} (set VEHICLE_DETECTION_DATA to the shared data folder)",
+)
+
+
+# --------------------------------------------------------------------------------------------
+# box_iou
+# --------------------------------------------------------------------------------------------
+class TestBoxIou:
+    def test_known_values(self):
+        a = [[0, 0, 10, 10]]
+        b = [
+            [0, 0, 10, 10],  # identical: 1
+            [20, 20, 30, 30],  # disjoint: 0
+            [10, 0, 20, 10],  # shares the edge x=10, but x2 is exclusive: no common pixel, 0
+            [5, 0, 15, 10],  # half of each: inter 5*10=50, union 100+100-50=150 -> 1/3
+            [0, 0, 5, 10],  # the left half of a: inter 50, union 100 -> 1/2
+            [5, 5, 15, 15],  # a quarter of each: inter 25, union 175 -> 1/7
+            [-10, -10, 20, 20],  # a inside a 30x30 box: 100/900 -> 1/9
+        ]
+        expected = [[1.0, 0.0, 0.0, 1 / 3, 1 / 2, 1 / 7, 1 / 9]]
+        np.testing.assert_allclose(box_iou(a, b), expected, rtol=1e-12)
+
+    def test_one_pixel_boxes(self):
+        # [0,0,1,1] is the single pixel (0,0); [0,0,2,2] covers 4 pixels -> 1/4.
+        np.testing.assert_allclose(box_iou([[0, 0, 1, 1]], [[0, 0, 2, 2], [1, 1, 2, 2]]), [[0.25, 0.0]])
+
+    def test_shape_and_dtype(self):
+        a = np.array([[0, 0, 4, 4], [2, 2, 6, 6]], dtype=np.int32)
+        b = np.array([[0, 0, 4, 4], [2, 2, 6, 6], [100, 100, 101, 101]], dtype=np.float32)
+        iou = box_iou(a, b)
+        assert iou.shape == (2, 3) and iou.dtype == np.float64
+        # a[0] vs a[1]: inter 2*2=4, union 16+16-4=28 -> 1/7
+        np.testing.assert_allclose(iou, [[1, 1 / 7, 0], [1 / 7, 1, 0]], rtol=1e-12)
+
+    def test_float_coordinates(self):
+        # [0,0,1,1] vs [0.5,0,1.5,1]: inter 0.5, union 1.5 -> 1/3
+        np.testing.assert_allclose(box_iou([[0.0, 0.0, 1.0, 1.0]], [[0.5, 0.0, 1.5, 1.0]]), [[1 / 3]])
+
+    @pytest.mark.parametrize(
+        "a, b, shape",
+        [([], [[0, 0, 1, 1]], (0, 1)), (np.zeros((2, 4)) + [0, 0, 1, 1], [], (2, 0)), ([], [], (0, 0))],
+    )
+    def test_empty_inputs(self, a, b, shape):
+        assert box_iou(a, b).shape == shape
+
+    def test_zero_area_boxes_give_zero_not_nan(self):
+        iou = box_iou([[3, 3, 3, 3]], [[3, 3, 3, 3], [0, 0, 10, 10]])
+        np.testing.assert_array_equal(iou, [[0.0, 0.0]])
+
+    @pytest.mark.parametrize(
+        "bad",
+        [
+            [[0, 0, 1]],  # 3 coordinates
+            [0, 0, 1, 1],  # 1-D
+            [[0, 0, 1, np.nan]],
+            [[5, 0, 4, 1]],  # x2 < x1
+            [[0, 5, 1, 4]],  # y2 < y1
+            [["a", "b", "c", "d"]],
+        ],
+    )
+    def test_rejects_malformed_boxes(self, bad):
+        with pytest.raises(ValueError):
+            box_iou(bad, [[0, 0, 1, 1]])
+
+
+# --------------------------------------------------------------------------------------------
+# match_frame
+# --------------------------------------------------------------------------------------------
+CAR = [100, 100, 200, 200]  # 100 x 100
+
+
+def _labels(cars=(), ignore=()):
+    return FrameLabels(cars=list(cars), ignore=list(ignore))
+
+
+class TestMatchFrame:
+    def test_more_detections_than_cars(self):
+        cars = [[0, 0, 10, 10], [50, 0, 60, 10]]
+        dets = [
+            [300, 300, 310, 310],  # nowhere near a car: FP
+            [50, 0, 60, 10],  # exactly car 1
+            [0, 0, 10, 9],  # car 0, IoU 90/100
+            [0, 0, 3, 10],  # overlaps car 0, IoU 30/100 < 0.5: FP
+        ]
+        m = match_frame(dets, _labels(cars))
+        assert (m.tp, m.fp, m.fn, m.ignored) == (2, 2, 0, 0)
+        np.testing.assert_array_equal(m.matches, [[1, 1], [2, 0]])
+        np.testing.assert_allclose(m.match_iou, [1.0, 0.9])
+        np.testing.assert_array_equal(m.false_positives, [0, 3])
+
+    @pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+    def test_duplicates_around_one_car(self, order):
+        exact = CAR
+        shifted = [110, 100, 210, 200]  # inter 90*100=9000, union 20000-9000 -> IoU 9/11
+        dets = [[exact, shifted][i] for i in order]
+        m = match_frame(dets, _labels([CAR]))
+        assert (m.tp, m.fp, m.fn) == (1, 1, 0)
+        # The better box (IoU 1) is the match, wherever it is in the list.
+        assert m.matches.tolist() == [[order.index(0), 0]]
+        assert m.match_iou.tolist() == [1.0]
+
+    def test_unmatched_cars_are_false_negatives(self):
+        m = match_frame([[100, 100, 200, 200]], _labels([CAR, [400, 100, 500, 200], [600, 0, 650, 50]]))
+        assert (m.tp, m.fp, m.fn) == (1, 0, 2)
+        np.testing.assert_array_equal(m.missed, [1, 2])
+
+    def test_iou_threshold(self):
+        det = [[150, 100, 250, 200]]  # inter 50*100, union 15000 -> IoU 1/3
+        at_05 = match_frame(det, _labels([CAR]), iou_threshold=0.5)
+        at_03 = match_frame(det, _labels([CAR]), iou_threshold=0.3)
+        assert (at_05.tp, at_05.fp, at_05.fn) == (0, 1, 1)
+        assert (at_03.tp, at_03.fp, at_03.fn) == (1, 0, 0)
+
+    def test_threshold_is_inclusive(self):
+        det = [[100, 100, 150, 200]]  # the left half of CAR: IoU exactly 5000/10000 = 0.5
+        assert match_frame(det, _labels([CAR]), iou_threshold=0.5).tp == 1
+        assert match_frame(det, _labels([CAR]), iou_threshold=0.51).tp == 0
+
+    def test_prefers_more_matches_over_one_tighter_match(self):
+        # c1 = [0,0,10,10], c2 = [5,0,15,10]
+        # A = [0,0,10,9]:  IoU(A,c1) = 90/100 = 0.9;  IoU(A,c2) = 45/(90+100-45) = 45/145 ~ 0.310
+        # B = [-5,0,5,10]: IoU(B,c1) = 50/150 ~ 0.333; IoU(B,c2) = 0
+        # At threshold 0.3 the single pair A-c1 has the larger IoU sum (0.9 > 0.644), but
+        # A-c2 + B-c1 finds both cars: two true positives, no false positive.
+        cars = [[0, 0, 10, 10], [5, 0, 15, 10]]
+        dets = [[0, 0, 10, 9], [-5, 0, 5, 10]]
+        m = match_frame(dets, _labels(cars), iou_threshold=0.3)
+        assert (m.tp, m.fp, m.fn) == (2, 0, 0)
+        np.testing.assert_array_equal(m.matches, [[0, 1], [1, 0]])
+        np.testing.assert_allclose(m.match_iou, [45 / 145, 50 / 150])
+
+    def test_maximises_total_iou_among_equal_counts(self):
+        # Both detections overlap both cars; the crossed assignment has the smaller IoU sum.
+        cars = [[0, 0, 10, 10], [2, 0, 12, 10]]
+        dets = [[2, 0, 12, 10], [0, 0, 10, 10]]  # det 0 = car 1, det 1 = car 0
+        # IoU(car0, car1) = 80/120 = 2/3 >= 0.5, so det 0 - car 0 would also be allowed.
+        m = match_frame(dets, _labels(cars))
+        np.testing.assert_array_equal(m.matches, [[0, 1], [1, 0]])
+        np.testing.assert_allclose(m.match_iou, [1.0, 1.0])
+
+    def test_detection_inside_ignore_region_is_ignored(self):
+        ignore = [[0, 0, 100, 50]]
+        dets = [
+            [10, 10, 30, 30],  # wholly inside: ignored
+            [80, 0, 120, 10],  # 20 of its 40 columns inside: exactly 0.5 -> ignored (>=)
+            [90, 0, 115, 10],  # 10 of 25 columns inside: 0.4 -> FP
+            [300, 300, 310, 310],  # outside: FP
+        ]
+        m = match_frame(dets, _labels([], ignore))
+        assert (m.tp, m.fp, m.fn, m.ignored) == (0, 2, 0, 2)
+        np.testing.assert_array_equal(m.ignored_detections, [0, 1])
+        np.testing.assert_array_equal(m.false_positives, [2, 3])
+        # A lower ignore_overlap lets the 40 % one through too.
+        assert match_frame(dets, _labels([], ignore), ignore_overlap=0.4).ignored == 3
+
+    def test_overlap_must_be_inside_one_ignore_box(self):
+        # The detection [0,0,100,10] is 40 % in each of two ignore boxes (80 % in total).
+        ignore = [[0, 0, 40, 10], [60, 0, 100, 10]]
+        m = match_frame([[0, 0, 100, 10]], _labels([], ignore))
+        assert (m.fp, m.ignored) == (1, 0)
+
+    def test_cars_take_precedence_over_ignore(self):
+        m = match_frame([CAR], _labels([CAR], [[0, 0, 1000, 1000]]))
+        assert (m.tp, m.fp, m.ignored) == (1, 0, 0)
+
+    def test_matched_detection_never_ignored_but_duplicate_is(self):
+        # Two boxes on a car inside an ignore region: one TP, the duplicate is ignored, not FP.
+        m = match_frame([CAR, [105, 100, 205, 200]], _labels([CAR], [[0, 0, 1000, 1000]]))
+        assert (m.tp, m.fp, m.ignored) == (1, 0, 1)
+
+    @pytest.mark.parametrize(
+        "dets, cars, counts",
+        [
+            ([], [], (0, 0, 0)),
+            ([], [CAR, [300, 300, 310, 310]], (0, 0, 2)),
+            ([CAR, [300, 300, 310, 310]], [], (0, 2, 0)),
+            (np.zeros((0, 4)), np.zeros((0, 4), dtype=int), (0, 0, 0)),
+        ],
+    )
+    def test_empty_frames(self, dets, cars, counts):
+        m = match_frame(dets, _labels(cars))
+        assert (m.tp, m.fp, m.fn) == counts
+        assert m.matches.shape == (0, 2) and m.match_iou.shape == (0,)
+
+    def test_plain_array_labels_are_cars(self):
+        m = match_frame([CAR], np.array([CAR]))
+        assert (m.tp, m.fp, m.fn) == (1, 0, 0)
+
+    @pytest.mark.parametrize("kwargs", [{"iou_threshold": 0.0}, {"iou_threshold": 1.5}, {"ignore_overlap": 0}])
+    def test_rejects_bad_fractions(self, kwargs):
+        with pytest.raises(ValueError):
+            match_frame([CAR], _labels([CAR]), **kwargs)
+
+
+# --------------------------------------------------------------------------------------------
+# FrameLabels and load_annotations
+# --------------------------------------------------------------------------------------------
+def test_frame_labels_are_read_only_int_arrays():
+    labels = FrameLabels(cars=[[1, 2, 3, 4]])
+    assert labels.cars.dtype == np.int64 and labels.cars.shape == (1, 4)
+    assert labels.ignore.shape == (0, 4)
+    with pytest.raises(ValueError):
+        labels.cars[0, 0] = 7
+    with pytest.raises(ValueError, match="zero area"):
+        FrameLabels(cars=[[1, 2, 1, 4]])
+
+
+@needs_clip_a
+def test_load_real_clip_a():
+    ann = load_annotations(CLIP_A)
+    assert isinstance(ann, Annotations)
+    assert ann.video == "videos/project_video_clip_A.mp4"
+    assert list(ann.frames) == [0, 50, 100, 150, 200, 250]
+    assert ann.n_cars == 12
+    for labels in ann.frames.values():
+        assert labels.cars.shape == (2, 4) and labels.cars.dtype == np.int64
+        assert np.all(labels.cars[:, 2:] > labels.cars[:, :2])
+        assert np.all(labels.cars[:, 2] <= 1280) and np.all(labels.cars[:, 3] <= 720)
+        assert np.all(labels.ignore[:, 2:] > labels.ignore[:, :2])
+    # The first car of frame 0 as written in the file.
+    assert ann.frames[0].cars[0].tolist() == [820, 406, 971, 501]
+
+
+@needs_clip_a
+def test_evaluate_real_labels_as_detections_is_perfect():
+    ann = load_annotations(CLIP_A)
+    scores = evaluate_detections({f: lab.cars for f, lab in ann.frames.items()}, ann)
+    for s in scores.values():
+        assert (s.tp, s.fp, s.fn, s.ignored, s.n_frames) == (12, 0, 0, 0, 6)
+        assert s.precision == s.recall == s.f1 == 1.0
+
+
+@needs_clip_a
+def test_real_ignore_regions_absorb_detections_on_them():
+    # Detecting exactly the ignore regions: no car is matched (each ignore box overlaps the cars
+    # far below IoU 0.5), and every detection lies wholly inside its own ignore box.
+    ann = load_annotations(CLIP_A)
+    scores = evaluate_detections({f: lab.ignore for f, lab in ann.frames.items()}, ann, [0.5])[0.5]
+    n_ignore = sum(len(lab.ignore) for lab in ann.frames.values())
+    assert (scores.tp, scores.fp, scores.fn, scores.ignored) == (0, 0, 12, n_ignore)
+
+
+def _write(tmp_path: Path, text: str, name: str = "labels.json") -> Path:
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _doc(frames) -> str:
+    return json.dumps({"video": "v.mp4", "frames": frames})
+
+
+GOOD_FRAME = {"cars": [[0, 0, 10, 10]], "ignore": []}
+
+
+@pytest.mark.parametrize(
+    "text, fragments",
+    [
+        ('{"frames": {"0": ', ["invalid JSON", "line 1"]),
+        ("[1, 2]", ["JSON object"]),
+        ('{"video": "v.mp4"}', ["'frames'"]),
+        ('{"frames": [1]}', ["'frames' must be an object"]),
+        ('{"video": 3, "frames": {}}', ["'video'"]),
+        (_doc({"-1": GOOD_FRAME}), ['frame key "-1"']),
+        (_doc({"1.5": GOOD_FRAME}), ['frame key "1.5"']),
+        (_doc({"a": GOOD_FRAME}), ['frame key "a"']),
+        (_doc({" 3": GOOD_FRAME}), ['frame key " 3"']),
+        (_doc({"03": GOOD_FRAME}), ['frame key "03"']),
+        (_doc({"7": [[0, 0, 1, 1]]}), ['frames["7"]', "object"]),
+        (_doc({"7": {"ignore": []}}), ['frames["7"]', "'cars'"]),
+        (_doc({"7": {"cars": [], "ignroe": []}}), ['frames["7"]', "ignroe"]),
+        (_doc({"7": {"cars": {"a": 1}}}), ['frames["7"].cars', "list"]),
+        (_doc({"0": GOOD_FRAME, "7": {"cars": [[0, 0, 10, 10], [1, 2, 3]]}}), ['frames["7"].cars[1]', "4 numbers"]),
+        (_doc({"7": {"cars": [[0, 0, "10", 10]]}}), ['frames["7"].cars[0]', "x2 is not a number"]),
+        (_doc({"7": {"cars": [[0, 0, True, 10]]}}), ['frames["7"].cars[0]', "x2 is not a number"]),
+        (_doc({"7": {"cars": [[0, 0, 10.5, 10]]}}), ['frames["7"].cars[0]', "whole pixel"]),
+        (_doc({"7": {"cars": [[-1, 0, 10, 10]]}}), ['frames["7"].cars[0]', "x1 = -1"]),
+        (_doc({"7": {"cars": [[0, 0, 10, 10]], "ignore": [[0, 0, 5, 5], [5, 0, 5, 9]]}}),
+         ['frames["7"].ignore[1]', "x2 (5) <= x1 (5)"]),
+        (_doc({"7": {"cars": [[0, 9, 10, 3]]}}), ['frames["7"].cars[0]', "y2 (3) <= y1 (9)"]),
+        ('{"frames": {"0": {"cars": [[0, 0, NaN, 1]]}}}', ["NaN"]),
+        ('{"frames": {"0": {"cars": []}, "0": {"cars": []}}}', ["duplicate key '0'"]),
+    ],
+)
+def test_load_annotations_rejects_broken_files(tmp_path, text, fragments):
+    path = _write(tmp_path, text, name="broken_labels.json")
+    with pytest.raises(InputError) as info:
+        load_annotations(path)
+    message = str(info.value)
+    assert str(path) in message
+    for fragment in fragments:
+        assert fragment in message
+
+
+def test_load_annotations_unreadable_files(tmp_path):
+    missing = tmp_path / "nope.json"
+    with pytest.raises(InputError, match="nope.json.*not found"):
+        load_annotations(missing)
+    with pytest.raises(InputError, match="folder"):
+        load_annotations(tmp_path)
+    binary = tmp_path / "binary.json"
+    binary.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(InputError, match="binary.json.*UTF-8"):
+        load_annotations(binary)
+
+
+def test_load_annotations_minimal_file(tmp_path):
+    # No video, no ignore lists, frames out of order, float pixels that are whole, extra keys.
+    text = '{"format": "x", "frames": {"10": {"cars": [[0, 0, 4.0, 4]]}, "2": {"cars": []}}}'
+    ann = load_annotations(_write(tmp_path, text))
+    assert ann.video is None
+    assert list(ann.frames) == [2, 10]
+    assert ann.frames[10].cars.tolist() == [[0, 0, 4, 4]]
+    assert ann.frames[2].cars.shape == (0, 4) and ann.frames[10].ignore.shape == (0, 4)
+
+
+# --------------------------------------------------------------------------------------------
+# Scores and evaluate_detections
+# --------------------------------------------------------------------------------------------
+class TestScores:
+    def test_rates(self):
+        s = Scores(tp=3, fp=1, fn=2, ignored=5, n_frames=4)
+        assert s.precision == pytest.approx(3 / 4)
+        assert s.recall == pytest.approx(3 / 5)
+        assert s.f1 == pytest.approx(2 * 0.75 * 0.6 / (0.75 + 0.6))  # = 2/3
+        assert s.fp_per_frame == pytest.approx(1 / 4)
+
+    @pytest.mark.parametrize(
+        "counts, p, r, f1",
+        [
+            ((0, 0, 0), 1.0, 1.0, 1.0),  # nothing to find, nothing found
+            ((0, 0, 2), 1.0, 0.0, 0.0),  # no detections: precision 1 by convention
+            ((0, 3, 0), 0.0, 1.0, 0.0),  # no cars: recall 1 by convention
+        ],
+    )
+    def test_conventions(self, counts, p, r, f1):
+        tp, fp, fn = counts
+        s = Scores(tp=tp, fp=fp, fn=fn, ignored=0, n_frames=0)
+        assert (s.precision, s.recall, s.f1, s.fp_per_frame) == (p, r, f1, 0.0)
+
+    def test_as_dict_is_json_ready(self):
+        s = Scores(tp=np.int64(3), fp=1, fn=2, ignored=0, n_frames=4)
+        d = json.loads(json.dumps(s.as_dict()))
+        assert d == {
+            "tp": 3, "fp": 1, "fn": 2, "ignored": 0, "n_frames": 4,
+            "precision": 0.75, "recall": 0.6, "f1": pytest.approx(2 / 3), "fp_per_frame": 0.25,
+        }
+
+    def test_rejects_negative_counts(self):
+        with pytest.raises(ValueError):
+            Scores(tp=-1, fp=0, fn=0, ignored=0, n_frames=1)
+
+
+def _annotations(frames: dict) -> Annotations:
+    return Annotations(video=None, frames={f: FrameLabels(**lab) for f, lab in frames.items()})
+
+
+class TestEvaluateDetections:
+    ANN = {
+        0: {"cars": [CAR], "ignore": [[0, 0, 50, 50]]},
+        5: {"cars": [CAR, [300, 100, 400, 200]]},
+        9: {"cars": []},
+    }
+
+    def test_perfect_detections(self):
+        ann = _annotations(self.ANN)
+        scores = evaluate_detections({f: lab.cars for f, lab in ann.frames.items()}, ann)
+        assert list(scores) == [0.5, 0.3]
+        for s in scores.values():
+            assert (s.tp, s.fp, s.fn, s.n_frames) == (3, 0, 0, 3)
+            assert s.precision == s.recall == s.f1 == 1.0
+
+    def test_counts_across_frames_and_thresholds(self):
+        ann = _annotations(self.ANN)
+        dets = {
+            0: [[150, 100, 250, 200], [10, 10, 20, 20]],  # IoU 1/3 with CAR; one in ignore
+            # frame 5 missing: no detections, two misses
+            9: [[0, 0, 5, 5]],  # no cars: FP
+            42: [[0, 0, 5, 5]] * 3,  # not annotated: not scored
+        }
+        scores = evaluate_detections(dets, ann, iou_thresholds=[0.5, 0.3])
+        s5, s3 = scores[0.5], scores[0.3]
+        # At 0.5 the shifted box misses CAR: FP; CAR, and both frame-5 cars, are missed.
+        assert (s5.tp, s5.fp, s5.fn, s5.ignored, s5.n_frames) == (0, 2, 3, 1, 3)
+        # At 0.3 it matches.
+        assert (s3.tp, s3.fp, s3.fn, s3.ignored, s3.n_frames) == (1, 1, 2, 1, 3)
+        assert s3.precision == pytest.approx(1 / 2) and s3.recall == pytest.approx(1 / 3)
+        assert s3.fp_per_frame == pytest.approx(1 / 3)
+
+    def test_no_frames(self):
+        s = evaluate_detections({0: [CAR]}, Annotations(video=None, frames={}), [0.5])[0.5]
+        assert (s.tp, s.fp, s.fn, s.n_frames, s.fp_per_frame) == (0, 0, 0, 0, 0.0)
+
+    @pytest.mark.parametrize("thresholds", [[], [0.0], [1.2]])
+    def test_rejects_bad_thresholds(self, thresholds):
+        with pytest.raises(ValueError):
+            evaluate_detections({}, _annotations(self.ANN), thresholds)
+
+    def test_rejects_malformed_detections_naming_the_frame(self):
+        with pytest.raises(ValueError, match="frame 5"):
+            evaluate_detections({5: [[0, 0, 1]]}, _annotations(self.ANN))
+
+
+# --------------------------------------------------------------------------------------------
+# Properties
+# --------------------------------------------------------------------------------------------
+@st.composite
+def box_sets(draw, max_boxes=6, max_coord=60, max_size=40):
+    n = draw(st.integers(0, max_boxes))
+    out = []
+    for _ in range(n):
+        x1 = draw(st.integers(0, max_coord))
+        y1 = draw(st.integers(0, max_coord))
+        out.append([x1, y1, x1 + draw(st.integers(1, max_size)), y1 + draw(st.integers(1, max_size))])
+    return np.array(out, dtype=np.int64).reshape(-1, 4)
+
+
+@settings(deadline=None)
+@given(box_sets(), box_sets())
+def test_iou_symmetric_bounded_and_one_on_diagonal(a, b):
+    ab, ba = box_iou(a, b), box_iou(b, a)
+    np.testing.assert_allclose(ab, ba.T, rtol=1e-12, atol=0)
+    assert np.all((ab >= 0) & (ab <= 1))
+    np.testing.assert_allclose(np.diag(box_iou(a, a)), 1.0)
+
+
+@settings(deadline=None, max_examples=60)
+@given(box_sets(max_boxes=3, max_coord=12, max_size=8), box_sets(max_boxes=3, max_coord=12, max_size=8))
+def test_iou_matches_pixel_count(a, b):
+    # Rasterise each box as the pixels [x1, x2) x [y1, y2) and count.
+    def mask(box):
+        m = np.zeros((24, 24), dtype=bool)
+        m[box[1] : box[3], box[0] : box[2]] = True
+        return m
+
+    iou = box_iou(a, b)
+    for i, j in product(range(len(a)), range(len(b))):
+        ma, mb = mask(a[i]), mask(b[j])
+        assert iou[i, j] == pytest.approx((ma & mb).sum() / (ma | mb).sum())
+
+
+def _best_matching(iou: np.ndarray, threshold: float) -> tuple[int, float]:
+    """(most pairs, largest IoU sum among those) over all one-to-one matchings, by brute force."""
+    n_det, n_car = iou.shape
+    best = (0, 0.0)
+
+    def walk(d, used, count, total):
+        nonlocal best
+        if d == n_det:
+            if count > best[0] or (count == best[0] and total > best[1]):
+                best = (count, total)
+            return
+        walk(d + 1, used, count, total)
+        for c in range(n_car):
+            if c not in used and iou[d, c] >= threshold:
+                walk(d + 1, used | {c}, count + 1, total + iou[d, c])
+
+    walk(0, frozenset(), 0, 0.0)
+    return best
+
+
+@settings(deadline=None, max_examples=150)
+@given(
+    box_sets(max_boxes=4, max_coord=20, max_size=20),
+    box_sets(max_boxes=4, max_coord=20, max_size=20),
+    st.sampled_from([0.1, 0.3, 0.5, 0.7]),
+)
+def test_matching_is_optimal(dets, cars, threshold):
+    m = match_frame(dets, FrameLabels(cars=cars), iou_threshold=threshold)
+    iou = box_iou(dets, cars)
+    count, total = _best_matching(iou, threshold)
+    assert m.tp == count
+    assert m.match_iou.sum() == pytest.approx(total)
+    # One to one, above threshold, and IoUs reported correctly.
+    assert len(set(m.matches[:, 0])) == len(set(m.matches[:, 1])) == m.tp
+    assert np.all(m.match_iou >= threshold)
+    np.testing.assert_allclose(m.match_iou, iou[m.matches[:, 0], m.matches[:, 1]])
+
+
+@settings(deadline=None, max_examples=80)
+@given(
+    st.lists(st.tuples(box_sets(), box_sets(), box_sets(max_boxes=2)), min_size=1, max_size=5),
+    st.lists(st.floats(0.05, 1.0), min_size=1, max_size=3),
+    st.floats(0.05, 1.0),
+)
+def test_evaluation_counts_are_consistent(frames, thresholds, ignore_overlap):
+    ann = Annotations(
+        video=None, frames={i: FrameLabels(cars=c, ignore=ig) for i, (_, c, ig) in enumerate(frames)}
+    )
+    dets = {i: d for i, (d, _, _) in enumerate(frames)}
+    n_cars = sum(len(c) for _, c, _ in frames)
+    n_dets = sum(len(d) for d, _, _ in frames)
+    scores = evaluate_detections(dets, ann, thresholds, ignore_overlap=ignore_overlap)
+    assert set(scores) == set(thresholds)
+    for s in scores.values():
+        assert s.tp + s.fn == n_cars
+        assert s.tp + s.fp + s.ignored == n_dets
+        assert s.n_frames == len(frames)
+        for rate in (s.precision, s.recall, s.f1):
+            assert 0.0 <= rate <= 1.0

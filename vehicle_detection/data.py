@@ -1,0 +1,232 @@
+"""The labelled training set: 64x64 ``vehicles`` and ``non-vehicles`` patches (GTI, KITTI).
+
+:func:`load_dataset` reads the two Udacity archives (``vehicles.zip``, ``non-vehicles.zip``)
+or their extracted folders from a data folder, chosen in this order: the ``data_dir`` argument
+(``--data-dir`` on the command line), the ``VEHICLE_DETECTION_DATA`` environment variable,
+``./data``. :func:`vehicle_detection.download.download_archives` fetches them.
+
+Honest splits need groups. The GTI folders are time series: consecutive file numbers are the
+same car (or the same stretch of road) a few frames apart, so a random split puts near copies on
+both sides. The archives do not label tracks; measured on the data, the mean absolute difference
+between image ``i`` and ``i + d`` keeps growing up to ``d`` of a few hundred in GTI and is
+flat in KITTI. :func:`load_dataset` therefore groups each folder's images into blocks of
+``track_length`` consecutive file numbers (a stand-in for the track), and merges the groups of
+byte-identical files, so a grouped split (:class:`sklearn.model_selection.GroupShuffleSplit`)
+never has the same picture, and rarely the same car, on both sides.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .images import decode_image
+
+__all__ = ["DATA_ENV", "CLASSES", "Dataset", "default_data_dir", "load_dataset", "find_duplicates"]
+
+DATA_ENV = "VEHICLE_DETECTION_DATA"
+#: Archive / top folder name -> label.
+CLASSES = {"vehicles": 1, "non-vehicles": 0}
+PATCH_SHAPE = (64, 64, 3)
+
+
+def default_data_dir(data_dir: str | os.PathLike | None = None) -> Path:
+    """The data folder: ``data_dir`` if given, else ``$VEHICLE_DETECTION_DATA``, else ``./data``."""
+    if data_dir is not None:
+        return Path(data_dir)
+    env = os.environ.get(DATA_ENV)
+    return Path(env) if env else Path("data")
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """Training patches with labels and provenance.
+
+    Attributes
+    ----------
+    images : ndarray of uint8, shape (N, 64, 64, 3)
+        RGB patches.
+    labels : ndarray of int8, shape (N,)
+        1 for a vehicle, 0 for anything else.
+    sources : ndarray of str, shape (N,)
+        Source folder, e.g. ``'vehicles/GTI_Far'``.
+    names : ndarray of str, shape (N,)
+        File path inside the archive or data folder.
+    groups : ndarray of int64, shape (N,)
+        Group id for leakage-free splits (see module docstring).
+    digests : ndarray of str, shape (N,)
+        SHA-1 of each file's bytes (equal digests = byte-identical files).
+    """
+
+    images: np.ndarray
+    labels: np.ndarray
+    sources: np.ndarray
+    names: np.ndarray
+    groups: np.ndarray
+    digests: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def subset(self, index) -> Dataset:
+        """The patches selected by a boolean mask or index array."""
+        return Dataset(*(getattr(self, f)[index] for f in ("images", "labels", "sources", "names", "groups", "digests")))
+
+    def counts(self) -> dict[str, int]:
+        """Number of patches per source folder, sorted by folder."""
+        src, n = np.unique(self.sources, return_counts=True)
+        return {str(s): int(c) for s, c in zip(src, n)}
+
+
+def _file_number(name: str) -> int:
+    nums = re.findall(r"\d+", name.rsplit("/", 1)[-1])
+    return int(nums[-1]) if nums else 0
+
+
+def _list_members(root: Path, cls: str) -> tuple[list[str], callable]:
+    """Names of the PNG patches of one class and a function reading one name's bytes."""
+    archive, folder = root / f"{cls}.zip", root / cls
+    if archive.is_file():
+        try:
+            zf = zipfile.ZipFile(archive)
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise InputError(f"{archive}: not a readable zip archive ({exc}); delete it and download again") from None
+        names = [
+            n
+            for n in zf.namelist()
+            if n.lower().endswith(".png") and n.startswith(f"{cls}/") and not n.rsplit("/", 1)[-1].startswith(".")
+        ]
+
+        def read(name, zf=zf, archive=archive):
+            try:
+                return zf.read(name)
+            except (zipfile.BadZipFile, OSError, EOFError) as exc:
+                raise InputError(f"{archive}: member {name} is corrupt ({exc})") from None
+
+        return names, read
+    if folder.is_dir():
+        names = sorted(
+            p.relative_to(root).as_posix() for p in folder.rglob("*.png") if not p.name.startswith(".")
+        )
+        return names, lambda name: (root / name).read_bytes()
+    raise InputError(
+        f"{root}: neither {cls}.zip nor a {cls}/ folder found; run `vehicle-detection download` "
+        f"or point --data-dir (or ${DATA_ENV}) at the folder holding them"
+    )
+
+
+def find_duplicates(digests: np.ndarray) -> list[np.ndarray]:
+    """Groups of byte-identical files.
+
+    Parameters
+    ----------
+    digests : ndarray of str, shape (N,)
+
+    Returns
+    -------
+    list of ndarray of int
+        Index arrays (sorted) of each group of two or more identical files.
+    """
+    _, inverse, counts = np.unique(digests, return_inverse=True, return_counts=True)
+    order = np.argsort(inverse, kind="stable")
+    splits = np.split(order, np.cumsum(counts)[:-1])
+    return [np.sort(g) for g in splits if len(g) > 1]
+
+
+def _groups(sources: np.ndarray, names: np.ndarray, digests: np.ndarray, track_length: int) -> np.ndarray:
+    keys = [f"{s}#{_file_number(n) // track_length}" for s, n in zip(sources, names)]
+    _, groups = np.unique(keys, return_inverse=True)
+    groups = groups.astype(np.int64)
+    # Byte-identical files must share a group: union the groups of each duplicate set.
+    parent = np.arange(groups.max() + 1 if len(groups) else 0)
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for dup in find_duplicates(digests):
+        roots = {find(g) for g in groups[dup]}
+        r0 = min(roots)
+        for r in roots:
+            parent[r] = r0
+    return np.array([find(g) for g in groups], dtype=np.int64)
+
+
+def load_dataset(
+    data_dir: str | os.PathLike | None = None,
+    *,
+    drop_duplicates: bool = False,
+    track_length: int = 100,
+    n_jobs: int = 4,
+) -> Dataset:
+    """Load the training set from the archives or their extracted folders.
+
+    Parameters
+    ----------
+    data_dir : path-like, optional
+        Folder holding ``vehicles.zip`` and ``non-vehicles.zip`` (or ``vehicles/`` and
+        ``non-vehicles/``); see :func:`default_data_dir`.
+    drop_duplicates : bool
+        Keep only the first (by name) of each group of byte-identical files.
+    track_length : int
+        Consecutive file numbers per group (see module docstring).
+    n_jobs : int
+        Decoding threads.
+
+    Returns
+    -------
+    Dataset
+        Sorted by class (vehicles first), then folder, then file number.
+
+    Raises
+    ------
+    InputError
+        If the data are missing, an archive is unreadable, or a patch is not a 64x64 image;
+        the message names the file.
+    """
+    root = default_data_dir(data_dir)
+    if not root.is_dir():
+        raise InputError(
+            f"{root}: data folder not found; run `vehicle-detection download` or pass --data-dir (or set ${DATA_ENV})"
+        )
+    entries = []
+    for cls in CLASSES:
+        names, read = _list_members(root, cls)
+        if not names:
+            raise InputError(f"{root}: no PNG images under {cls}/")
+        names.sort(key=lambda n: (n.rsplit("/", 1)[0], _file_number(n), n))
+        entries.extend((cls, n, read) for n in names)
+
+    def load(entry):
+        cls, name, read = entry
+        data = read(name)
+        img = decode_image(data, f"{root / name}")
+        if img.shape != PATCH_SHAPE:
+            raise InputError(f"{root / name}: training patches must be 64x64, got {img.shape[1]}x{img.shape[0]}")
+        return img, hashlib.sha1(data).hexdigest()
+
+    with ThreadPoolExecutor(max_workers=max(1, n_jobs)) as pool:
+        loaded = list(pool.map(load, entries, chunksize=256))
+    images = np.stack([img for img, _ in loaded]) if loaded else np.empty((0, *PATCH_SHAPE), np.uint8)
+    digests = np.array([d for _, d in loaded])
+    names = np.array([n for _, n, _ in entries])
+    labels = np.array([CLASSES[c] for c, _, _ in entries], dtype=np.int8)
+    sources = np.array([n.rsplit("/", 1)[0] for n in names])
+    groups = _groups(sources, names, digests, track_length)
+    ds = Dataset(images, labels, sources, names, groups, digests)
+    if drop_duplicates:
+        keep = np.ones(len(ds), bool)
+        for dup in find_duplicates(digests):
+            keep[dup[1:]] = False
+        ds = ds.subset(keep)
+    return ds

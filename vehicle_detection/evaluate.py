@@ -1,0 +1,580 @@
+"""Score detected vehicle boxes against hand-labelled frames.
+
+The annotation format is described in ``data/README.md`` of the shared data: a JSON object whose
+``frames`` maps a 0-based decoded frame index (a string) to ``cars`` (boxes that must be found) and
+``ignore`` (far, truncated or oncoming vehicles). An unmatched detection lying mostly inside one
+ignore box is neither a true nor a false positive; it is counted as ``ignored``.
+
+Boxes are ``(n, 4)`` arrays ``[x1, y1, x2, y2]`` in pixels with ``x2`` and ``y2`` exclusive, so a
+box covers ``(x2 - x1) * (y2 - y1)`` pixels.
+
+Scoring conventions
+-------------------
+* Matching is one-to-one between detections and cars, among pairs whose IoU is at least the
+  threshold. The matching first maximises the number of matched pairs (true positives) and, among
+  matchings of that size, the total IoU (see :func:`match_frame`).
+* ``precision = tp / (tp + fp)``, defined as 1.0 when there are no scored detections
+  (``tp + fp == 0``: no detections at all, or every one ignored).
+* ``recall = tp / (tp + fn)``, defined as 1.0 when there are no cars.
+* ``f1`` is the harmonic mean of precision and recall, 0.0 when both are 0.
+* ``fp_per_frame = fp / n_frames``, 0.0 when no frame was scored.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import linear_sum_assignment
+
+from .errors import InputError
+
+__all__ = [
+    "FrameLabels",
+    "Annotations",
+    "FrameMatch",
+    "Scores",
+    "load_annotations",
+    "box_iou",
+    "match_frame",
+    "evaluate_detections",
+]
+
+# Annotation coordinates beyond this are certainly typos (and would not fit the int arrays).
+_MAX_COORD = 2**31 - 1
+_FRAME_KEY = re.compile(r"0|[1-9][0-9]*", re.ASCII)
+_FRAME_FIELDS = ("cars", "ignore")
+
+
+# --------------------------------------------------------------------------------------------
+# Box arrays
+# --------------------------------------------------------------------------------------------
+def _as_boxes(boxes: ArrayLike, name: str, *, integer: bool = False) -> np.ndarray:
+    """Validate ``boxes`` as an ``(n, 4)`` array; raise ``ValueError`` naming ``name``.
+
+    Empty inputs (``[]``, shape ``(0,)``) become shape ``(0, 4)``. Coordinates must be finite with
+    ``x2 >= x1`` and ``y2 >= y1`` (zero-area boxes are allowed here). With ``integer`` the result is
+    ``int64`` and non-integral values are refused; otherwise it is ``float64``.
+    """
+    arr = np.asarray(boxes)
+    if arr.size == 0:
+        arr = arr.reshape(0, 4)
+    if arr.ndim != 2 or arr.shape[1] != 4:
+        raise ValueError(f"{name} must have shape (n, 4) as [x1, y1, x2, y2]; got shape {arr.shape}")
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{name} must hold numbers; got dtype {arr.dtype}")
+    if np.issubdtype(arr.dtype, np.floating):
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} holds NaN or infinite coordinates")
+        if integer:
+            if np.any(arr != np.round(arr)):
+                raise ValueError(f"{name} must hold whole pixel coordinates; round them first (np.rint)")
+            if np.any(np.abs(arr) > _MAX_COORD):
+                raise ValueError(f"{name} holds coordinates beyond {_MAX_COORD}")
+    arr = arr.astype(np.int64 if integer else np.float64, copy=False)
+    bad = np.flatnonzero((arr[:, 2] < arr[:, 0]) | (arr[:, 3] < arr[:, 1]))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{name}[{i}] = {arr[i].tolist()} has x2 < x1 or y2 < y1")
+    return arr
+
+
+def _frozen_int_boxes(boxes: ArrayLike, name: str) -> np.ndarray:
+    arr = np.array(_as_boxes(boxes, name, integer=True), dtype=np.int64, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
+def _areas(boxes: np.ndarray) -> np.ndarray:
+    return (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+
+
+def _intersections(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairwise intersection areas, shape ``(len(a), len(b))``, float64."""
+    w = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
+    h = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
+    return np.clip(w, 0, None) * np.clip(h, 0, None)
+
+
+def box_iou(a: ArrayLike, b: ArrayLike) -> np.ndarray:
+    """Pairwise intersection over union of two sets of boxes.
+
+    Parameters
+    ----------
+    a : array_like, shape (n, 4)
+        Boxes ``[x1, y1, x2, y2]`` (x2, y2 exclusive), any integer or float dtype. An empty input
+        (``[]``) is read as shape ``(0, 4)``.
+    b : array_like, shape (m, 4)
+        Boxes as for ``a``.
+
+    Returns
+    -------
+    ndarray of float64, shape (n, m)
+        ``iou[i, j]`` is the IoU of ``a[i]`` and ``b[j]``, in ``[0, 1]``. Two boxes whose union has
+        zero area (both degenerate) have IoU 0.
+
+    Raises
+    ------
+    ValueError
+        If a set is not of shape ``(n, 4)``, holds non-finite values, or has ``x2 < x1`` or
+        ``y2 < y1``.
+
+    Examples
+    --------
+    >>> box_iou([[0, 0, 10, 10]], [[0, 0, 10, 10], [5, 0, 15, 10], [20, 20, 30, 30]])
+    array([[1.        , 0.33333333, 0.        ]])
+    """
+    a = _as_boxes(a, "a")
+    b = _as_boxes(b, "b")
+    inter = _intersections(a, b)
+    union = _areas(a)[:, None] + _areas(b)[None, :] - inter
+    iou = np.zeros_like(inter)
+    np.divide(inter, union, out=iou, where=union > 0)
+    return np.clip(iou, 0.0, 1.0, out=iou)
+
+
+# --------------------------------------------------------------------------------------------
+# Annotations
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class FrameLabels:
+    """The labelled boxes of one frame.
+
+    Parameters
+    ----------
+    cars : array_like, shape (n, 4)
+        Vehicles that must be found. Stored as a read-only ``int64`` array.
+    ignore : array_like, shape (m, 4)
+        Regions (far, truncated or oncoming vehicles) in which an unmatched detection is not a
+        false positive. Stored as a read-only ``int64`` array; defaults to none.
+
+    Raises
+    ------
+    ValueError
+        If a box is not 4 whole numbers with ``x2 > x1`` and ``y2 > y1``.
+
+    Notes
+    -----
+    Equality is identity (comparing arrays element-wise is left to the caller).
+    """
+
+    cars: np.ndarray
+    ignore: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
+
+    def __post_init__(self) -> None:
+        for name in _FRAME_FIELDS:
+            arr = _frozen_int_boxes(getattr(self, name), name)
+            empty = np.flatnonzero((arr[:, 2] == arr[:, 0]) | (arr[:, 3] == arr[:, 1]))
+            if empty.size:
+                i = int(empty[0])
+                raise ValueError(f"{name}[{i}] = {arr[i].tolist()} has zero area (x2 == x1 or y2 == y1)")
+            object.__setattr__(self, name, arr)
+
+
+@dataclass(frozen=True, eq=False)
+class Annotations:
+    """Hand-labelled frames of one video.
+
+    Parameters
+    ----------
+    video : str or None
+        The annotated video as written in the file (relative to the data folder), if given.
+    frames : dict of int to FrameLabels
+        Labels by 0-based decoded frame index, in increasing frame order.
+    """
+
+    video: str | None
+    frames: dict[int, FrameLabels]
+
+    @property
+    def n_cars(self) -> int:
+        """Total number of ``cars`` boxes over all frames."""
+        return sum(len(f.cars) for f in self.frames.values())
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a number allowed in annotations")
+
+
+def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"duplicate key {key!r}")
+        out[key] = value
+    return out
+
+
+def _parse_box(value: Any, where: str, path: Path) -> list[int]:
+    def fail(problem: str) -> InputError:
+        return InputError(f"{path}: {where} = {json.dumps(value)}: {problem}")
+
+    if not isinstance(value, list) or len(value) != 4:
+        raise fail("a box must be a list of 4 numbers [x1, y1, x2, y2]")
+    coords = []
+    for name, v in zip(("x1", "y1", "x2", "y2"), value):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise fail(f"{name} is not a number")
+        if isinstance(v, float) and not v.is_integer():
+            raise fail(f"{name} = {v} is not a whole pixel")
+        if v < 0 or v > _MAX_COORD:
+            raise fail(f"{name} = {v} is outside 0..{_MAX_COORD}")
+        coords.append(int(v))
+    x1, y1, x2, y2 = coords
+    if x2 <= x1:
+        raise fail(f"x2 ({x2}) <= x1 ({x1}); boxes need x2 > x1 (x2 is exclusive)")
+    if y2 <= y1:
+        raise fail(f"y2 ({y2}) <= y1 ({y1}); boxes need y2 > y1 (y2 is exclusive)")
+    return coords
+
+
+def _parse_frame(key: str, value: Any, path: Path) -> FrameLabels:
+    where = f"frames[{json.dumps(key)}]"
+    if not isinstance(value, dict):
+        raise InputError(f"{path}: {where} must be an object with 'cars' and 'ignore'")
+    unknown = sorted(set(value) - set(_FRAME_FIELDS))
+    if unknown:
+        raise InputError(f"{path}: {where} has unknown key(s) {unknown}; expected only 'cars' and 'ignore'")
+    if "cars" not in value:
+        raise InputError(f"{path}: {where} has no 'cars' list (write \"cars\": [] for a frame without cars)")
+    lists = {}
+    for name in _FRAME_FIELDS:
+        boxes = value.get(name, [])
+        if not isinstance(boxes, list):
+            raise InputError(f"{path}: {where}.{name} must be a list of boxes")
+        lists[name] = [_parse_box(b, f"{where}.{name}[{i}]", path) for i, b in enumerate(boxes)]
+    return FrameLabels(cars=lists["cars"], ignore=lists["ignore"])
+
+
+def load_annotations(path: str | os.PathLike) -> Annotations:
+    """Read and validate a JSON annotation file.
+
+    Parameters
+    ----------
+    path : path-like
+        JSON object with ``frames`` (required) mapping frame index strings (``"0"``, ``"50"``; no
+        sign, spaces or leading zeros) to objects with ``cars`` (required) and ``ignore``
+        (optional) lists of ``[x1, y1, x2, y2]`` boxes of whole, non-negative pixels with
+        ``x2 > x1`` and ``y2 > y1``; and optionally ``video`` (string or null). Other top-level
+        keys (e.g. ``format``) are allowed and ignored; other keys inside a frame are refused, so
+        that a misspelt ``"ignroe"`` cannot silently drop labels.
+
+    Returns
+    -------
+    Annotations
+        With ``frames`` sorted by frame index.
+
+    Raises
+    ------
+    InputError
+        If the file cannot be read, is not JSON (including ``NaN``/``Infinity`` and duplicate
+        keys), or breaks the format; the message names the file and the frame and box at fault,
+        e.g. ``frames["50"].cars[1]``.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: annotation file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not an annotation file") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}); is this a JSON file?") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read annotation file: {exc.strerror or exc}") from None
+    try:
+        doc = json.loads(text, object_pairs_hook=_no_duplicate_keys, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except ValueError as exc:  # from the hooks above
+        raise InputError(f"{path}: invalid annotation JSON: {exc}") from None
+
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object with 'frames', got {type(doc).__name__}")
+    if "frames" not in doc:
+        raise InputError(f"{path}: no 'frames' key; expected {{\"frames\": {{\"<frame index>\": ...}}}}")
+    video = doc.get("video")
+    if video is not None and not isinstance(video, str):
+        raise InputError(f"{path}: 'video' must be a string or null")
+    raw_frames = doc["frames"]
+    if not isinstance(raw_frames, dict):
+        raise InputError(f"{path}: 'frames' must be an object mapping frame indices to labels")
+
+    frames: dict[int, FrameLabels] = {}
+    for key, value in raw_frames.items():
+        if not _FRAME_KEY.fullmatch(key):
+            raise InputError(
+                f"{path}: frame key {json.dumps(key)} is not a non-negative integer "
+                "(a 0-based frame index written without sign, spaces or leading zeros)"
+            )
+        frames[int(key)] = _parse_frame(key, value, path)
+    return Annotations(video=video, frames=dict(sorted(frames.items())))
+
+
+# --------------------------------------------------------------------------------------------
+# Matching and scores
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class FrameMatch:
+    """The outcome of matching one frame's detections to its labels.
+
+    Attributes
+    ----------
+    matches : ndarray of intp, shape (tp, 2)
+        Matched pairs ``(detection index, car index)``, sorted by detection index.
+    match_iou : ndarray of float64, shape (tp,)
+        IoU of each matched pair.
+    false_positives : ndarray of intp, shape (fp,)
+        Indices of unmatched detections not inside an ignore box.
+    ignored_detections : ndarray of intp, shape (ignored,)
+        Indices of unmatched detections lying inside an ignore box.
+    missed : ndarray of intp, shape (fn,)
+        Indices of cars that no detection matched.
+    """
+
+    matches: np.ndarray
+    match_iou: np.ndarray
+    false_positives: np.ndarray
+    ignored_detections: np.ndarray
+    missed: np.ndarray
+
+    @property
+    def tp(self) -> int:
+        """Number of true positives (matched pairs)."""
+        return len(self.matches)
+
+    @property
+    def fp(self) -> int:
+        """Number of false positives."""
+        return len(self.false_positives)
+
+    @property
+    def fn(self) -> int:
+        """Number of false negatives (missed cars)."""
+        return len(self.missed)
+
+    @property
+    def ignored(self) -> int:
+        """Number of unmatched detections inside an ignore box."""
+        return len(self.ignored_detections)
+
+
+def _check_fraction(value: float, name: str) -> float:
+    value = float(value)
+    if not 0.0 < value <= 1.0:
+        raise ValueError(f"{name} must be in (0, 1]; got {value}")
+    return value
+
+
+def match_frame(
+    detections: ArrayLike,
+    labels: FrameLabels | ArrayLike,
+    iou_threshold: float = 0.5,
+    ignore_overlap: float = 0.5,
+) -> FrameMatch:
+    """Match one frame's detections to its labelled cars, one to one.
+
+    Parameters
+    ----------
+    detections : array_like, shape (k, 4)
+        Detected boxes ``[x1, y1, x2, y2]`` (x2, y2 exclusive).
+    labels : FrameLabels or array_like of shape (n, 4)
+        The frame's labels; a plain array is taken as ``cars`` with no ignore regions.
+    iou_threshold : float, default 0.5
+        A detection and a car can be matched only if their IoU is at least this, in ``(0, 1]``.
+    ignore_overlap : float, default 0.5
+        An unmatched detection is ignored (not a false positive) if at least this fraction of its
+        area lies inside one single ignore box, in ``(0, 1]``. A zero-area detection is never
+        ignored.
+
+    Returns
+    -------
+    FrameMatch
+        The matched pairs and the indices of false positives, ignored detections and missed cars.
+
+    Notes
+    -----
+    Among the pairs with IoU >= ``iou_threshold`` the matching has the largest possible number
+    of pairs and, among such matchings, the largest total IoU (an assignment problem solved with
+    :func:`scipy.optimize.linear_sum_assignment`). Maximising total IoU alone could trade two
+    valid matches for one tighter match at low thresholds, turning a true positive into a false
+    positive plus a false negative.
+
+    Cars take precedence over ignore regions: a detection matched to a car is a true positive
+    even if it lies inside an ignore box.
+    """
+    iou_threshold = _check_fraction(iou_threshold, "iou_threshold")
+    ignore_overlap = _check_fraction(ignore_overlap, "ignore_overlap")
+    dets = _as_boxes(detections, "detections")
+    if not isinstance(labels, FrameLabels):
+        labels = FrameLabels(cars=labels)
+    cars = labels.cars.astype(np.float64)
+    n_det, n_car = len(dets), len(cars)
+
+    det_idx = np.zeros(0, dtype=np.intp)
+    car_idx = np.zeros(0, dtype=np.intp)
+    pair_iou = np.zeros(0, dtype=np.float64)
+    if n_det and n_car:
+        iou = box_iou(dets, cars)
+        valid = iou >= iou_threshold
+        if valid.any():
+            # Each valid pair is worth `bonus` (> any total IoU) plus its IoU, so the optimum has
+            # the most pairs first, then the largest IoU sum; invalid pairs are worth nothing.
+            bonus = float(min(n_det, n_car) + 1)
+            weight = np.where(valid, bonus + iou, 0.0)
+            rows, cols = linear_sum_assignment(weight, maximize=True)
+            keep = valid[rows, cols]
+            det_idx = rows[keep].astype(np.intp)
+            car_idx = cols[keep].astype(np.intp)
+            pair_iou = iou[det_idx, car_idx]
+
+    unmatched = np.setdiff1d(np.arange(n_det, dtype=np.intp), det_idx)
+    inside = np.zeros(len(unmatched), dtype=bool)
+    if len(unmatched) and len(labels.ignore):
+        cand = dets[unmatched]
+        area = _areas(cand)
+        inter = _intersections(cand, labels.ignore.astype(np.float64))
+        frac = np.zeros_like(inter)
+        np.divide(inter, area[:, None], out=frac, where=area[:, None] > 0)
+        inside = (frac >= ignore_overlap).any(axis=1)
+
+    missed = np.setdiff1d(np.arange(n_car, dtype=np.intp), car_idx)
+    order = np.argsort(det_idx, kind="stable")
+    return FrameMatch(
+        matches=np.stack([det_idx[order], car_idx[order]], axis=1).reshape(-1, 2),
+        match_iou=pair_iou[order],
+        false_positives=unmatched[~inside],
+        ignored_detections=unmatched[inside],
+        missed=missed,
+    )
+
+
+@dataclass(frozen=True)
+class Scores:
+    """Detection counts and rates over a set of frames at one IoU threshold.
+
+    Parameters
+    ----------
+    tp, fp, fn, ignored : int
+        True positives, false positives, false negatives (missed cars), and unmatched detections
+        inside ignore regions.
+    n_frames : int
+        Number of frames scored.
+
+    Notes
+    -----
+    The rates are derived from the counts (module docstring): ``precision`` is 1.0 when
+    ``tp + fp == 0``, ``recall`` is 1.0 when ``tp + fn == 0``, ``f1`` is 0.0 when both are 0, and
+    ``fp_per_frame`` is 0.0 when ``n_frames == 0``.
+    """
+
+    tp: int
+    fp: int
+    fn: int
+    ignored: int
+    n_frames: int
+
+    def __post_init__(self) -> None:
+        for name in ("tp", "fp", "fn", "ignored", "n_frames"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise ValueError(f"{name} must be a non-negative integer; got {value!r}")
+            object.__setattr__(self, name, int(value))
+
+    @property
+    def precision(self) -> float:
+        """``tp / (tp + fp)``; 1.0 when there are no scored detections."""
+        scored = self.tp + self.fp
+        return self.tp / scored if scored else 1.0
+
+    @property
+    def recall(self) -> float:
+        """``tp / (tp + fn)``; 1.0 when there are no cars."""
+        cars = self.tp + self.fn
+        return self.tp / cars if cars else 1.0
+
+    @property
+    def f1(self) -> float:
+        """Harmonic mean of precision and recall; 0.0 when both are 0."""
+        p, r = self.precision, self.recall
+        return 2 * p * r / (p + r) if p + r else 0.0
+
+    @property
+    def fp_per_frame(self) -> float:
+        """False positives per scored frame; 0.0 when no frame was scored."""
+        return self.fp / self.n_frames if self.n_frames else 0.0
+
+    def as_dict(self) -> dict[str, int | float]:
+        """Counts and rates as a JSON-ready dict of plain ``int`` and ``float``."""
+        return {
+            "tp": self.tp,
+            "fp": self.fp,
+            "fn": self.fn,
+            "ignored": self.ignored,
+            "n_frames": self.n_frames,
+            "precision": self.precision,
+            "recall": self.recall,
+            "f1": self.f1,
+            "fp_per_frame": self.fp_per_frame,
+        }
+
+
+def evaluate_detections(
+    detections_by_frame: Mapping[int, ArrayLike],
+    annotations: Annotations,
+    iou_thresholds: Iterable[float] = (0.5, 0.3),
+    *,
+    ignore_overlap: float = 0.5,
+) -> dict[float, Scores]:
+    """Score detections on every annotated frame, at one or more IoU thresholds.
+
+    Parameters
+    ----------
+    detections_by_frame : mapping of int to array_like of shape (k, 4)
+        Detected boxes by 0-based decoded frame index, e.g. from
+        :func:`vehicle_detection.boxes.read_boxes_csv`. Only annotated frames are scored: an
+        annotated frame missing here counts as a frame with no detections, and frames that are not
+        annotated are skipped.
+    annotations : Annotations
+        From :func:`load_annotations`.
+    iou_thresholds : iterable of float, default (0.5, 0.3)
+        Each in ``(0, 1]``; the frames are matched separately at each.
+    ignore_overlap : float, default 0.5
+        As for :func:`match_frame`.
+
+    Returns
+    -------
+    dict of float to Scores
+        One :class:`Scores` per threshold, keyed by the threshold as a float, in the order given.
+        For JSON: ``{str(t): s.as_dict() for t, s in result.items()}``.
+
+    Raises
+    ------
+    ValueError
+        If a threshold is outside ``(0, 1]``, no threshold is given, or a detection array is
+        malformed (the message names the frame).
+    """
+    thresholds = [_check_fraction(t, "iou_threshold") for t in iou_thresholds]
+    if not thresholds:
+        raise ValueError("iou_thresholds is empty; give at least one threshold")
+    ignore_overlap = _check_fraction(ignore_overlap, "ignore_overlap")
+
+    dets: dict[int, np.ndarray] = {}
+    for frame in annotations.frames:
+        dets[frame] = _as_boxes(detections_by_frame.get(frame, ()), f"detections of frame {frame}")
+
+    result: dict[float, Scores] = {}
+    for t in thresholds:
+        tp = fp = fn = ignored = 0
+        for frame, labels in annotations.frames.items():
+            m = match_frame(dets[frame], labels, iou_threshold=t, ignore_overlap=ignore_overlap)
+            tp, fp, fn, ignored = tp + m.tp, fp + m.fp, fn + m.fn, ignored + m.ignored
+        result[t] = Scores(tp=tp, fp=fp, fn=fn, ignored=ignored, n_frames=len(annotations.frames))
+    return result
