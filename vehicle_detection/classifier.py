@@ -34,6 +34,7 @@ from .features import FEATURE_FORMAT, FeatureConfig, extract_features
 
 __all__ = [
     "MODEL_FORMAT",
+    "DEFAULT_C",
     "VehicleClassifier",
     "default_model_path",
     "load_default_model",
@@ -44,6 +45,8 @@ __all__ = [
 ]
 
 MODEL_FORMAT = "vehicle-detection-model"
+#: SVM regularisation used by default (chosen with the sweep on the grouped split).
+DEFAULT_C = 3e-4
 MODEL_FORMAT_VERSION = 1
 _ARRAYS = ("scaler_mean", "scaler_scale", "coef", "intercept")
 
@@ -103,7 +106,7 @@ class VehicleClassifier:
 
     # --- fitting -------------------------------------------------------------------------------
     @classmethod
-    def fit(cls, features: np.ndarray, labels: np.ndarray, config: FeatureConfig, *, C: float = 0.001, max_iter: int = 5000):
+    def fit(cls, features: np.ndarray, labels: np.ndarray, config: FeatureConfig, *, C: float = DEFAULT_C, max_iter: int = 5000):
         """Fit ``StandardScaler`` + ``LinearSVC`` on feature vectors.
 
         Parameters
@@ -120,7 +123,7 @@ class VehicleClassifier:
         from sklearn.preprocessing import StandardScaler
         from sklearn.svm import LinearSVC
 
-        pipe = make_pipeline(StandardScaler(), LinearSVC(C=C, dual=False, max_iter=max_iter))
+        pipe = make_pipeline(StandardScaler(), LinearSVC(C=C, dual=True, max_iter=max_iter))
         pipe.fit(features, labels)
         scaler, svm = pipe[0], pipe[1]
         scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
@@ -308,7 +311,7 @@ def train(
     dataset: Dataset,
     config: FeatureConfig = FeatureConfig(),
     *,
-    C: float = 0.001,
+    C: float = DEFAULT_C,
     test_size: float = 0.2,
     random_state: int = 0,
     evaluate: bool = True,
@@ -401,7 +404,7 @@ def sweep(
     dataset: Dataset,
     configs: list[FeatureConfig],
     *,
-    C: float = 0.001,
+    C: float = DEFAULT_C,
     test_size: float = 0.2,
     random_state: int = 0,
     n_jobs: int = 2,

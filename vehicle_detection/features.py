@@ -124,8 +124,8 @@ class FeatureConfig:
                 problems.append("orientations must be within 2..64")
             if self.pixels_per_cell < 4 or self.window % self.pixels_per_cell:
                 problems.append("pixels_per_cell must be >= 4 and divide window")
-            elif self.cells_per_block > self.window // self.pixels_per_cell:
-                problems.append("cells_per_block must not exceed the cells per window")
+            elif self.cells_per_block >= self.window // self.pixels_per_cell:
+                problems.append("cells_per_block must be smaller than the cells per window")
             if self.spatial_size < 0 or (self.spatial_size and self.window % self.spatial_size):
                 problems.append("spatial_size must be 0 or divide window")
             if not 0 <= self.hist_bins <= 256:
@@ -390,53 +390,61 @@ def _cell_votes(chan, lut, ppc, n_cr, n_cc, nb, cells, deltas, with_deltas):
                     deltas[corner, cy, cx, bv] -= mv
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _normalize_block(cells, deltas, r, c, cpb, top, bottom, left, right, out):
-    """L2-Hys normalise the block whose top-left cell is (r, c) into ``out`` (cpb*cpb*nb,).
-
-    The flags say which borders of the block are patch borders; the matching cell corrections
-    are applied first.
-    """
-    nb = cells.shape[2]
-    i = 0
-    for a in range(cpb):
-        for bcol in range(cpb):
-            t = top and a == 0
-            bt = bottom and a == cpb - 1
-            lf = left and bcol == 0
-            rt = right and bcol == cpb - 1
-            for k in range(nb):
-                v = cells[r + a, c + bcol, k]
-                if t:
-                    v += deltas[0, r + a, c + bcol, k]
-                if bt:
-                    v += deltas[1, r + a, c + bcol, k]
-                if lf:
-                    v += deltas[2, r + a, c + bcol, k]
-                if rt:
-                    v += deltas[3, r + a, c + bcol, k]
-                if t and lf:
-                    v += deltas[4, r + a, c + bcol, k]
-                if t and rt:
-                    v += deltas[5, r + a, c + bcol, k]
-                if bt and lf:
-                    v += deltas[6, r + a, c + bcol, k]
-                if bt and rt:
-                    v += deltas[7, r + a, c + bcol, k]
-                out[i] = v
-                i += 1
+@numba.njit(cache=True, nogil=True)
+def _l2hys(block):
+    """L2-Hys normalisation in place (scikit-image's: eps 1e-5, clip at 0.2)."""
+    n = block.shape[0]
     s = 0.0
-    for j in range(i):
-        s += out[j] * out[j]
+    for j in range(n):
+        s += block[j] * block[j]
     d = math.sqrt(s + 1e-10)
     s = 0.0
-    for j in range(i):
-        v = min(out[j] / d, 0.2)
-        out[j] = v
+    for j in range(n):
+        v = min(block[j] / d, 0.2)
+        block[j] = v
         s += v * v
     d = math.sqrt(s + 1e-10)
-    for j in range(i):
-        out[j] = out[j] / d
+    for j in range(n):
+        block[j] = block[j] / d
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_block(variants, r, c, cpb, vclass, hclass, block):
+    """Copy the cells of the block at (r, c) into ``block``, then L2-Hys normalise it.
+
+    ``variants[vr, hc]`` are the cell histograms seen by a patch whose border runs along the
+    cell's top (vr=1) or bottom (vr=2) and left (hc=1) or right (hc=2) edge. ``vclass`` says
+    whether the block lies on the patch's top (1) or bottom (2) border, ``hclass`` likewise for
+    left (1) and right (2); 0 is the interior.
+    """
+    nb = variants.shape[4]
+    i = 0
+    for a in range(cpb):
+        vr = 0
+        if vclass == 1 and a == 0:
+            vr = 1
+        elif vclass == 2 and a == cpb - 1:
+            vr = 2
+        for b in range(cpb):
+            hc = 0
+            if hclass == 1 and b == 0:
+                hc = 1
+            elif hclass == 2 and b == cpb - 1:
+                hc = 2
+            for k in range(nb):
+                block[i] = variants[vr, hc, r + a, c + b, k]
+                i += 1
+    _l2hys(block)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _block_map(variants, cpb, vclass, hclass, out):
+    """Normalised blocks of one border class at every block position: out (n_br, n_bc, bs)."""
+    for r in numba.prange(out.shape[0]):
+        block = np.empty(out.shape[2], np.float64)
+        for c in range(out.shape[1]):
+            _gather_block(variants, r, c, cpb, vclass, hclass, block)
+            out[r, c, :] = block
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -450,16 +458,16 @@ def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
     bs = cpb * cpb * nb
     per_ch = n_br * n_bc * bs
     for i in numba.prange(n):
-        cells = np.empty((n_cr, n_cc, nb), np.float64)
+        variants = np.empty((1, 1, n_cr, n_cc, nb), np.float64)
         dummy = np.zeros((8, 1, 1, 1), np.float64)
         block = np.empty(bs, np.float64)
         for ci in range(channels.shape[0]):
-            cells[:] = 0.0
-            _cell_votes(images[i, :, :, channels[ci]], lut, ppc, n_cr, n_cc, nb, cells, dummy, False)
+            variants[:] = 0.0
+            _cell_votes(images[i, :, :, channels[ci]], lut, ppc, n_cr, n_cc, nb, variants[0, 0], dummy, False)
             base = ci * per_ch
             for r in range(n_br):
                 for c in range(n_bc):
-                    _normalize_block(cells, dummy, r, c, cpb, False, False, False, False, block)
+                    _gather_block(variants, r, c, cpb, 0, 0, block)
                     o = base + (r * n_bc + c) * bs
                     for j in range(bs):
                         out[i, o + j] = block[j]
@@ -570,18 +578,21 @@ def hog_image(channel: np.ndarray, config: FeatureConfig) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RegionHOG:
-    """Cell histograms of one channel of a search region, with border corrections.
+    """Cell histograms of one channel of a search region, as seen from any window.
 
     Attributes
     ----------
-    cells : ndarray of float64, shape (n_cell_rows, n_cell_cols, orientations)
-    deltas : ndarray of float64, shape (8, n_cell_rows, n_cell_cols, orientations)
-        Change of a cell's histogram when its top, bottom, left or right border is a window
-        border, and the corner corrections (see module docstring).
+    variants : ndarray of float64, shape (3, 3, n_cell_rows, n_cell_cols, orientations)
+        ``variants[0, 0]`` are the cell histograms; ``variants[v, h]`` the histograms a cropped
+        window sees when its top (v=1) or bottom (v=2) border and its left (h=1) or right (h=2)
+        border runs along the cell's edge, where the crop has zero gradient across the border.
     """
 
-    cells: np.ndarray
-    deltas: np.ndarray
+    variants: np.ndarray
+
+    @property
+    def cells(self) -> np.ndarray:
+        return self.variants[0, 0]
 
 
 def region_hog(channel: np.ndarray, config: FeatureConfig) -> RegionHOG:
@@ -601,6 +612,16 @@ def region_hog(channel: np.ndarray, config: FeatureConfig) -> RegionHOG:
     ppc, nb = config.pixels_per_cell, config.orientations
     n_cr, n_cc = channel.shape[0] // ppc, channel.shape[1] // ppc
     cells = np.zeros((n_cr, n_cc, nb), np.float64)
-    deltas = np.zeros((8, n_cr, n_cc, nb), np.float64)
-    _cell_votes(channel, _orientation_lut(nb), ppc, n_cr, n_cc, nb, cells, deltas, True)
-    return RegionHOG(cells, deltas)
+    d = np.zeros((8, n_cr, n_cc, nb), np.float64)
+    _cell_votes(channel, _orientation_lut(nb), ppc, n_cr, n_cc, nb, cells, d, True)
+    v = np.empty((3, 3, n_cr, n_cc, nb), np.float64)
+    v[0, 0] = cells
+    v[1, 0] = cells + d[0]
+    v[2, 0] = cells + d[1]
+    v[0, 1] = cells + d[2]
+    v[0, 2] = cells + d[3]
+    v[1, 1] = v[1, 0] + d[2] + d[4]
+    v[1, 2] = v[1, 0] + d[3] + d[5]
+    v[2, 1] = v[2, 0] + d[2] + d[6]
+    v[2, 2] = v[2, 0] + d[3] + d[7]
+    return RegionHOG(v)

@@ -61,6 +61,7 @@ appears under its final name only when it is complete (see :mod:`vehicle_detecti
 from __future__ import annotations
 
 import io
+import itertools
 import math
 import os
 import queue
@@ -79,7 +80,7 @@ import numpy as np
 from ._files import atomic_output, check_output_path
 from .errors import InputError, OutputError
 
-__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS"]
+__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS", "process_video", "annotate_frame"]
 
 X264_PRESETS = (
     "ultrafast",
@@ -949,3 +950,103 @@ class VideoWriter:
             raise self._ffmpeg_error("ffmpeg stopped accepting frames")
         self._queue.put(np.array(frame, dtype=np.uint8, order="C", copy=True))
         self._frames_written += 1
+
+
+# --- detection over a video --------------------------------------------------------------------
+
+
+def annotate_frame(frame: np.ndarray, boxes: np.ndarray, track_ids=None) -> np.ndarray:
+    """A copy of an RGB frame with each vehicle's box (and track id) drawn on it."""
+    from .boxes import draw_boxes
+
+    labels = None if track_ids is None else [f"car {int(t)}" for t in track_ids]
+    return draw_boxes(frame, boxes, color=(0, 255, 0), thickness=4, labels=labels)
+
+
+def process_video(
+    path: str | os.PathLike,
+    output: str | os.PathLike | None = None,
+    *,
+    detector=None,
+    boxes_csv: str | os.PathLike | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+    max_frames: int | None = None,
+    crf: int = 23,
+    preset: str = "veryfast",
+):
+    """Detect and track vehicles through a video; write the annotated video and the boxes.
+
+    Decoding (a thread and an ffmpeg process), detection (this thread, numba on both cores)
+    and encoding (a thread and an ffmpeg process) overlap.
+
+    Parameters
+    ----------
+    path : path-like
+        Any video ffmpeg reads.
+    output : path-like, optional
+        Annotated H.264 MP4 to write (atomically); None writes no video.
+    detector : Detector, optional
+        Defaults to ``Detector()`` (the embedded model).
+    boxes_csv : path-like, optional
+        CSV of every reported box (``frame,x1,y1,x2,y2,track_id,score``), written atomically
+        once the whole video is processed.
+    overwrite : bool
+        Replace existing outputs (never the input).
+    progress : bool
+        Show a progress bar on stderr.
+    max_frames : int, optional
+        Stop after this many frames.
+
+    Returns
+    -------
+    BoxTable
+        Every reported box, frame by frame (0-based decoded frame index).
+    """
+    from contextlib import ExitStack
+
+    from .boxes import BoxTable, write_boxes_csv
+    from .detector import Detector
+
+    path = Path(path)
+    detector = detector or Detector()
+    # Refuse bad outputs before decoding anything.
+    for out in (output, boxes_csv):
+        if out is not None:
+            check_output_path(out, overwrite=overwrite, inputs=[path])
+    if output is not None and boxes_csv is not None and Path(output).resolve() == Path(boxes_csv).resolve():
+        raise OutputError(f"{output}: the video and the boxes CSV cannot be the same file")
+    info = probe_video(path)
+    total = info.n_frames if max_frames is None else min(max_frames, info.n_frames or max_frames)
+    tracker = detector.new_tracker()
+    detections = []
+    frames = read_frames(path)
+    try:
+        with ExitStack() as stack:
+            writer = None
+            if output is not None:
+                writer = stack.enter_context(
+                    VideoWriter(output, info.fps, info.size, overwrite=overwrite, inputs=[path], crf=crf, preset=preset)
+                )
+            bar = None
+            if progress and sys.stderr.isatty():
+                from tqdm import tqdm
+
+                bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
+            for frame in frames if max_frames is None else itertools.islice(frames, max_frames):
+                det = detector.step(frame, tracker)
+                detections.append(det)
+                if writer is not None:
+                    writer.write(annotate_frame(frame, det.boxes, det.track_ids))
+                if bar is not None:
+                    bar.update()
+            table = BoxTable.from_rows(
+                (d.index, box, tid, score) for d in detections for box, tid, score in zip(d.boxes, d.track_ids, d.scores)
+            )
+            if boxes_csv is not None:
+                # Written before the video is renamed into place: once the video exists under
+                # its final name, the CSV is complete too.
+                write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
+    finally:
+        frames.close()
+    return table

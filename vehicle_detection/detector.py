@@ -1,0 +1,157 @@
+"""The detector: a model, a search plan and a tracker, applied to images and frame sequences.
+
+:class:`Detector` is what the command line and the notebooks use:
+
+* :meth:`Detector.detect_image` finds vehicles in one picture: scored windows
+  (:func:`~vehicle_detection.search.search`) -> heat weighted by margin
+  (:mod:`~vehicle_detection.heatmap`) -> threshold -> one box per blob;
+* :meth:`Detector.track` follows vehicles through frames with a
+  :class:`~vehicle_detection.tracker.Tracker`, which integrates heat over recent frames to
+  reject one-frame false positives and keeps a stable, smoothed box per vehicle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .classifier import VehicleClassifier, load_default_model
+from .heatmap import add_heat, heat_to_boxes
+from .search import SearchPlan, Windows, search
+from .tracker import Tracker, TrackerConfig
+
+__all__ = ["ImageDetection", "FrameDetection", "Detector"]
+
+
+@dataclass(frozen=True)
+class ImageDetection:
+    """Result of :meth:`Detector.detect_image`.
+
+    Attributes
+    ----------
+    boxes : ndarray of int64, shape (n, 4)
+        One box per vehicle, ``[x1, y1, x2, y2]`` in image pixels.
+    scores : ndarray of float64, shape (n,)
+        Peak heat of each vehicle's blob.
+    windows : Windows
+        The windows above the plan's threshold.
+    heat : ndarray of float32, shape (H // cell, W // cell)
+        Heat map before thresholding.
+    """
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    windows: Windows
+    heat: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameDetection:
+    """One frame of :meth:`Detector.track`.
+
+    Attributes
+    ----------
+    index : int
+        0-based decoded frame index.
+    boxes : ndarray of int64, shape (n, 4)
+        Reported (confirmed) vehicles.
+    track_ids : ndarray of int64, shape (n,)
+    scores : ndarray of float64, shape (n,)
+    windows : Windows
+        This frame's hot windows.
+    """
+
+    index: int
+    boxes: np.ndarray
+    track_ids: np.ndarray
+    scores: np.ndarray
+    windows: Windows
+
+
+@dataclass
+class Detector:
+    """Vehicle detector over images and videos.
+
+    Parameters
+    ----------
+    model : VehicleClassifier, optional
+        Defaults to the embedded model.
+    plan : SearchPlan
+        Where to search, at which scales, and the margin a window needs.
+    tracker : TrackerConfig
+        Heat integration and track life cycle for videos; its ``cell``, ``min_size`` and
+        ``aspect_range`` are used for single images too.
+    image_threshold : float
+        Heat a single image's blob must exceed (no temporal integration there).
+    """
+
+    model: VehicleClassifier | None = None
+    plan: SearchPlan = field(default_factory=SearchPlan)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    image_threshold: float = 1.5
+
+    def __post_init__(self):
+        if self.model is None:
+            self.model = load_default_model()
+
+    def windows(self, frame: np.ndarray) -> Windows:
+        """Hot windows of one RGB ``uint8`` frame (margin above ``plan.threshold``)."""
+        return search(frame, self.model, self.plan)
+
+    def heat(self, frame_shape, windows: Windows) -> np.ndarray:
+        """Heat of one frame's windows: each adds its margin above the plan's threshold."""
+        cell = self.tracker.cell
+        h, w = frame_shape[:2]
+        heat = np.zeros((h // cell, w // cell), np.float32)
+        return add_heat(heat, windows.boxes, self.window_weights(windows), cell=cell)
+
+    def window_weights(self, windows: Windows) -> np.ndarray:
+        """Heat each window adds: its SVM margin above the plan's threshold."""
+        return np.asarray(windows.scores - self.plan.threshold, dtype=np.float32)
+
+    def detect_image(self, image: np.ndarray) -> ImageDetection:
+        """Vehicles in one RGB ``uint8`` image ``(H, W, 3)``: one box per heat blob."""
+        wins = self.windows(image)
+        heat = self.heat(image.shape, wins)
+        boxes, peaks = heat_to_boxes(
+            heat, self.image_threshold, cell=self.tracker.cell, min_size=self.tracker.min_size, aspect_range=self.tracker.aspect_range
+        )
+        return ImageDetection(boxes, np.asarray(peaks, np.float64), wins, heat)
+
+    def new_tracker(self) -> Tracker:
+        """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""
+        return Tracker(self.tracker)
+
+    def step(self, frame: np.ndarray, tracker: Tracker) -> FrameDetection:
+        """Detect in one frame and advance ``tracker`` by it."""
+        index = tracker.state.frame_index
+        wins = self.windows(frame)
+        tracks = tracker.update(wins.boxes, self.window_weights(wins), frame.shape)
+        return FrameDetection(
+            index,
+            np.array([t.int_box() for t in tracks], dtype=np.int64).reshape(-1, 4),
+            np.array([t.track_id for t in tracks], dtype=np.int64),
+            np.array([t.score for t in tracks], dtype=np.float64),
+            wins,
+        )
+
+    def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None) -> Iterator[FrameDetection]:
+        """Detect and follow vehicles through a sequence of RGB ``uint8`` frames.
+
+        Parameters
+        ----------
+        frames : iterable of ndarray
+            Decoded frames in order.
+        tracker : Tracker, optional
+            Pass the tracker of an earlier chunk to continue where it stopped (its frame
+            counter continues too); a new one by default.
+
+        Yields
+        ------
+        FrameDetection
+        """
+        tracker = tracker or self.new_tracker()
+        for frame in frames:
+            yield self.step(frame, tracker)

@@ -1,0 +1,474 @@
+"""Sliding-window search: where to look in a frame, and how to score every window at once.
+
+Two paths give the same answer:
+
+* the **plain path**, for teaching and figures: :func:`slide_window` lists windows and
+  :func:`classify_windows` crops, resizes and classifies each one; :func:`search_plain` does the
+  same over a :class:`SearchPlan`, one window at a time;
+* the **fast path**, used everywhere else (:func:`search`): per scale, the search region is
+  resized and colour-converted once, the HOG cells of the whole region are computed once, the
+  scaler is folded into the SVM weights, and every window is scored in one compiled pass (HOG
+  blocks dotted with the weight kernel; spatial bins from an integral image; colour histograms
+  as a per-pixel weight map summed by an integral image). No Python loop over windows.
+
+The fast path reproduces the features a cropped window would give, including scikit-image's zero
+gradient on the window border (see :mod:`vehicle_detection.features`), so both paths agree on
+every window's margin to rounding error; a test checks this on real frames.
+
+Coordinates: the plan is written for a frame ``reference_height`` pixels high (720, the project
+video); other frames are resized to that height first and the boxes mapped back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numba
+import numpy as np
+
+from .classifier import VehicleClassifier
+from .features import FeatureConfig, _block_map, _gather_block, convert_color, extract_features, region_hog
+from .images import as_rgb_uint8
+
+__all__ = [
+    "SearchScale",
+    "SearchPlan",
+    "Windows",
+    "slide_window",
+    "classify_windows",
+    "plan_windows",
+    "search",
+    "search_plain",
+]
+
+
+@dataclass(frozen=True)
+class SearchScale:
+    """One band of the frame searched with one window size.
+
+    Parameters
+    ----------
+    scale : float
+        Window side in frame pixels divided by the model's window (64): 1.5 means 96-pixel
+        windows.
+    y_start, y_stop : int
+        Rows searched (frame pixels at the reference height).
+    x_start : int
+        First column searched.
+    x_stop : int or None
+        End column (None: the frame's right edge).
+    step : int
+        Window step in HOG cells (of the scaled image): with 8-pixel cells and scale 1.5,
+        ``step=2`` moves windows by 24 frame pixels.
+    """
+
+    scale: float
+    y_start: int
+    y_stop: int
+    x_start: int = 0
+    x_stop: int | None = None
+    step: int = 2
+
+    def __post_init__(self):
+        if not self.scale > 0:
+            raise ValueError(f"scale must be positive, got {self.scale}")
+        if self.y_stop <= self.y_start or self.y_start < 0 or self.x_start < 0:
+            raise ValueError(f"empty or negative search band y {self.y_start}..{self.y_stop}")
+        if self.x_stop is not None and self.x_stop <= self.x_start:
+            raise ValueError(f"empty search band x {self.x_start}..{self.x_stop}")
+        if self.step < 1:
+            raise ValueError("step must be at least one cell")
+
+
+def _default_scales():
+    return (
+        SearchScale(1.0, 400, 496, step=1),
+        SearchScale(1.5, 400, 544, step=1),
+        SearchScale(2.0, 400, 592, step=1),
+        SearchScale(3.0, 400, 688, step=1),
+    )
+
+
+@dataclass(frozen=True)
+class SearchPlan:
+    """Where and at what sizes to search, and the margin above which a window is a hit.
+
+    Parameters
+    ----------
+    scales : tuple of SearchScale
+    threshold : float
+        Minimum SVM margin of a window reported as a detection.
+    reference_height : int
+        Frame height the bands are written for; other frames are resized to it.
+    """
+
+    scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
+    threshold: float = 0.0
+    reference_height: int = 720
+
+    def __post_init__(self):
+        object.__setattr__(self, "scales", tuple(self.scales))
+        if not self.scales:
+            raise ValueError("a search plan needs at least one scale")
+        if self.reference_height < 64:
+            raise ValueError("reference_height must be at least 64")
+
+    def to_dict(self) -> dict:
+        return {
+            "scales": [dict(vars(s)) for s in self.scales],
+            "threshold": self.threshold,
+            "reference_height": self.reference_height,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SearchPlan:
+        return cls(
+            scales=tuple(SearchScale(**s) for s in d["scales"]),
+            threshold=float(d["threshold"]),
+            reference_height=int(d["reference_height"]),
+        )
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Scored windows.
+
+    Attributes
+    ----------
+    boxes : ndarray of int64, shape (n, 4)
+        ``[x1, y1, x2, y2]`` in the input frame's pixels (x2, y2 exclusive).
+    scores : ndarray of float64, shape (n,)
+        SVM margins.
+    scale_index : ndarray of int64, shape (n,)
+        Which :attr:`SearchPlan.scales` entry produced each window.
+    """
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    scale_index: np.ndarray
+
+    def __len__(self):
+        return len(self.scores)
+
+    def above(self, threshold: float) -> Windows:
+        """The windows whose margin exceeds ``threshold``."""
+        keep = self.scores > threshold
+        return Windows(self.boxes[keep], self.scores[keep], self.scale_index[keep])
+
+    @staticmethod
+    def concatenate(parts) -> Windows:
+        parts = list(parts)
+        if not parts:
+            return Windows(np.zeros((0, 4), np.int64), np.zeros(0), np.zeros(0, np.int64))
+        return Windows(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("boxes", "scores", "scale_index")))
+
+
+# --- the plain path ----------------------------------------------------------------------------
+
+
+def slide_window(image_shape, x_start_stop=(None, None), y_start_stop=(None, None), xy_window=(64, 64), xy_overlap=(0.5, 0.5)):
+    """List the windows of one size over a region (the classic teaching version).
+
+    Parameters
+    ----------
+    image_shape : tuple
+        ``(H, W, ...)`` of the frame.
+    x_start_stop, y_start_stop : pair of int or None
+        Region; None means the frame edge.
+    xy_window : (int, int)
+        Window width and height in pixels.
+    xy_overlap : (float, float)
+        Fraction of overlap between neighbours, in [0, 1).
+
+    Returns
+    -------
+    ndarray of int64, shape (n, 4)
+        ``[x1, y1, x2, y2]`` boxes, row by row.
+    """
+    h, w = image_shape[:2]
+    x0, x1 = (x_start_stop[0] or 0), (x_start_stop[1] if x_start_stop[1] is not None else w)
+    y0, y1 = (y_start_stop[0] or 0), (y_start_stop[1] if y_start_stop[1] is not None else h)
+    ww, wh = xy_window
+    if not (0 <= xy_overlap[0] < 1 and 0 <= xy_overlap[1] < 1):
+        raise ValueError("overlap must be in [0, 1)")
+    sx = max(1, int(ww * (1 - xy_overlap[0])))
+    sy = max(1, int(wh * (1 - xy_overlap[1])))
+    xs = np.arange(x0, x1 - ww + 1, sx)
+    ys = np.arange(y0, y1 - wh + 1, sy)
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    return np.stack([xx.ravel(), yy.ravel(), xx.ravel() + ww, yy.ravel() + wh], axis=1).astype(np.int64)
+
+
+def classify_windows(image: np.ndarray, windows: np.ndarray, model: VehicleClassifier) -> np.ndarray:
+    """Margins of windows cropped from an RGB frame and resized to the model's patch size.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+    windows : ndarray of int, shape (n, 4)
+    model : VehicleClassifier
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+    """
+    image = as_rgb_uint8(image)
+    side = model.config.window
+    patches = np.empty((len(windows), side, side, 3), np.uint8)
+    for i, (x1, y1, x2, y2) in enumerate(np.asarray(windows)):
+        crop = image[y1:y2, x1:x2]
+        patches[i] = crop if crop.shape[:2] == (side, side) else cv2.resize(crop, (side, side), interpolation=cv2.INTER_AREA)
+    return model.decision_images(patches) if len(patches) else np.zeros(0)
+
+
+# --- shared geometry ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Band:
+    """A scale's region, resized: the pixels both paths score."""
+
+    image: np.ndarray  # RGB uint8 of the scaled region
+    x0: int  # region origin in working-frame pixels
+    y0: int
+    sx: float  # working-frame pixels per scaled pixel
+    sy: float
+    rows: np.ndarray  # window top rows, in cells of the scaled region
+    cols: np.ndarray
+
+
+def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, float]:
+    h, w = frame.shape[:2]
+    if h == plan.reference_height:
+        return frame, 1.0
+    f = plan.reference_height / h
+    resized = cv2.resize(frame, (max(1, round(w * f)), plan.reference_height), interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
+    return resized, f
+
+
+def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig) -> _Band | None:
+    h, w = frame.shape[:2]
+    x0, x1 = min(s.x_start, w), min(s.x_stop if s.x_stop is not None else w, w)
+    y0, y1 = min(s.y_start, h), min(s.y_stop, h)
+    side = config.window
+    if (x1 - x0) < side * s.scale or (y1 - y0) < side * s.scale:
+        return None
+    region = frame[y0:y1, x0:x1]
+    nw, nh = round((x1 - x0) / s.scale), round((y1 - y0) / s.scale)
+    scaled = region if (nw, nh) == (x1 - x0, y1 - y0) else cv2.resize(region, (nw, nh), interpolation=cv2.INTER_AREA)
+    ppc, cpw = config.pixels_per_cell, config.cells_per_window
+    n_cr, n_cc = nh // ppc, nw // ppc
+    rows = np.arange(0, n_cr - cpw + 1, s.step)
+    cols = np.arange(0, n_cc - cpw + 1, s.step)
+    if not len(rows) or not len(cols):
+        return None
+    return _Band(np.ascontiguousarray(scaled), x0, y0, (x1 - x0) / nw, (y1 - y0) / nh, rows, cols)
+
+
+def _band_boxes(band: _Band, config: FeatureConfig, f: float) -> np.ndarray:
+    ppc, side = config.pixels_per_cell, config.window
+    yy, xx = np.meshgrid(band.rows * ppc, band.cols * ppc, indexing="ij")
+    x1 = band.x0 + xx.ravel() * band.sx
+    y1 = band.y0 + yy.ravel() * band.sy
+    boxes = np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f
+    return np.rint(boxes).astype(np.int64)
+
+
+def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[np.ndarray]:
+    """The windows each scale of ``plan`` searches, as boxes in frame pixels (for figures).
+
+    Returns
+    -------
+    list of ndarray of int64, shape (n_i, 4)
+        One array per scale (empty where the band does not fit the frame).
+    """
+    h, w = frame_shape[:2]
+    f = plan.reference_height / h
+    dummy = np.zeros((plan.reference_height, max(1, round(w * f)), 3), np.uint8)
+    out = []
+    for s in plan.scales:
+        band = _band(dummy, s, config)
+        out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f))
+    return out
+
+
+def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan()) -> Windows:
+    """Score every window of the plan one at a time: crop, extract features, classify.
+
+    The reference the fast :func:`search` is tested against; about 100 times slower.
+
+    Returns
+    -------
+    Windows
+        All windows (not thresholded), in the order of :func:`search`.
+    """
+    frame = as_rgb_uint8(frame, name="frame")
+    work, f = _working_frame(frame, plan)
+    cfg = model.config
+    side, ppc = cfg.window, cfg.pixels_per_cell
+    parts = []
+    for k, s in enumerate(plan.scales):
+        band = _band(work, s, cfg)
+        if band is None:
+            continue
+        patches = np.stack(
+            [band.image[r * ppc : r * ppc + side, c * ppc : c * ppc + side] for r in band.rows for c in band.cols]
+        )
+        scores = model.decision_function(extract_features(patches, cfg))
+        parts.append(Windows(_band_boxes(band, cfg, f), scores, np.full(len(scores), k, np.int64)))
+    return Windows.concatenate(parts)
+
+
+# --- the fast path -----------------------------------------------------------------------------
+
+
+# Border classes of a block inside a window: (vertical, horizontal), 0 interior, 1 top/left,
+# 2 bottom/right. The five non-corner classes are precomputed as block maps (a block of one
+# class is shared by up to blocks_per_window - 2 windows); the four corners are normalised on
+# the fly (each is used by exactly one window).
+_MAP_CLASSES = ((0, 0), (1, 0), (2, 0), (0, 1), (0, 2))
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _score_hog(variants, maps, weights, cpb, rows, cols, out):
+    """HOG part of every window's margin.
+
+    variants (C, 3, 3, n_cr, n_cc, nb); maps (C, 5, n_br, n_bc, bs) for ``_MAP_CLASSES``;
+    weights (C, nbw, nbw, bs); rows/cols: window top-left cells; out (len(rows), len(cols)).
+    """
+    n_ch, nbw = weights.shape[0], weights.shape[1]
+    bs = weights.shape[3]
+    for wr in numba.prange(rows.shape[0]):
+        block = np.empty(bs, np.float64)
+        r0 = rows[wr]
+        for wc in range(cols.shape[0]):
+            c0 = cols[wc]
+            s = 0.0
+            for ch in range(n_ch):
+                for i in range(nbw):
+                    vc = 1 if i == 0 else (2 if i == nbw - 1 else 0)
+                    for j in range(nbw):
+                        hc = 1 if j == 0 else (2 if j == nbw - 1 else 0)
+                        if vc != 0 and hc != 0:
+                            _gather_block(variants[ch], r0 + i, c0 + j, cpb, vc, hc, block)
+                            for k in range(bs):
+                                s += block[k] * weights[ch, i, j, k]
+                        else:
+                            m = 0 if vc == 0 and hc == 0 else (vc if vc != 0 else 2 + hc)
+                            for k in range(bs):
+                                s += maps[ch, m, r0 + i, c0 + j, k] * weights[ch, i, j, k]
+            out[wr, wc] = s
+
+
+@numba.njit(cache=True, nogil=True)
+def _score_spatial(integral, weights, size, f, ppc, rows, cols, out):
+    """Spatial-bin part: integral (H+1, W+1, 3) int64 of the scaled image; weights (size, size, 3)."""
+    inv = 1.0 / (f * f)
+    for wr in range(rows.shape[0]):
+        y0 = rows[wr] * ppc
+        for wc in range(cols.shape[0]):
+            x0 = cols[wc] * ppc
+            s = 0.0
+            for by in range(size):
+                ya = y0 + by * f
+                for bx in range(size):
+                    xa = x0 + bx * f
+                    for ch in range(3):
+                        total = integral[ya + f, xa + f, ch] - integral[ya, xa + f, ch] - integral[ya + f, xa, ch] + integral[ya, xa, ch]
+                        s += np.float32(total * inv) * weights[by, bx, ch]
+            out[wr, wc] += s
+
+
+def _histogram_score_map(conv: np.ndarray, weights: np.ndarray, bins: int) -> np.ndarray:
+    """Integral image of each pixel's histogram weight: sum over channels of w[ch, bin(v)]."""
+    lut_bins = (np.arange(256) * bins) // 256
+    per_pixel = sum(weights[ch][lut_bins][conv[:, :, ch]] for ch in range(3))
+    integral = np.zeros((per_pixel.shape[0] + 1, per_pixel.shape[1] + 1))
+    np.cumsum(np.cumsum(per_pixel, axis=0), axis=1, out=integral[1:, 1:])
+    return integral
+
+
+class _FoldedModel:
+    """A model's weights split by feature part, the scaler folded in (cached per model)."""
+
+    def __init__(self, model: VehicleClassifier):
+        cfg = model.config
+        w, b = model.folded()
+        lay = cfg.layout()
+        self.bias = b
+        self.spatial = w[lay["spatial"]].reshape(cfg.spatial_size, cfg.spatial_size, 3) if cfg.spatial_size else None
+        self.hist = w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else None
+        nbw = cfg.blocks_per_window
+        self.hog = np.ascontiguousarray(w[lay["hog"]].reshape(len(cfg.hog_channels), nbw, nbw, cfg.block_size))
+
+
+_FOLDED: dict[int, tuple[VehicleClassifier, _FoldedModel]] = {}
+
+
+def _folded(model: VehicleClassifier) -> _FoldedModel:
+    hit = _FOLDED.get(id(model))
+    if hit is None or hit[0] is not model:
+        hit = (model, _FoldedModel(model))
+        _FOLDED.clear()  # one model at a time is the common case; keep the cache small
+        _FOLDED[id(model)] = hit
+    return hit[1]
+
+
+def _score_band(band: _Band, model: VehicleClassifier, folded: _FoldedModel) -> np.ndarray:
+    cfg = model.config
+    conv = convert_color(band.image, cfg.color_space)
+    ppc, cpb = cfg.pixels_per_cell, cfg.cells_per_block
+    variants = np.stack([region_hog(conv[:, :, ch], cfg).variants for ch in cfg.hog_channels])
+    n_cr, n_cc = variants.shape[3:5]
+    maps = np.empty((len(variants), len(_MAP_CLASSES), n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size))
+    for ch in range(len(variants)):
+        for m, (vc, hc) in enumerate(_MAP_CLASSES):
+            _block_map(variants[ch], cpb, vc, hc, maps[ch, m])
+    out = np.empty((len(band.rows), len(band.cols)))
+    _score_hog(variants, maps, folded.hog, cpb, band.rows, band.cols, out)
+    if cfg.spatial_size:
+        f = cfg.window // cfg.spatial_size
+        integral = np.zeros((conv.shape[0] + 1, conv.shape[1] + 1, 3), np.int64)
+        np.cumsum(np.cumsum(conv, axis=0, dtype=np.int64), axis=1, out=integral[1:, 1:])
+        _score_spatial(integral, folded.spatial, cfg.spatial_size, f, ppc, band.rows, band.cols, out)
+    if cfg.hist_bins:
+        integ = _histogram_score_map(conv, folded.hist, cfg.hist_bins)
+        y0 = band.rows[:, None] * ppc
+        x0 = band.cols[None, :] * ppc
+        side = cfg.window
+        out += integ[y0 + side, x0 + side] - integ[y0, x0 + side] - integ[y0 + side, x0] + integ[y0, x0]
+    out += folded.bias
+    return out.ravel()
+
+
+def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan(), *, all_windows: bool = False) -> Windows:
+    """Find the windows the classifier calls vehicles, scoring every window of the plan at once.
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+        RGB frame (any size; resized internally to ``plan.reference_height``).
+    model : VehicleClassifier
+    plan : SearchPlan
+    all_windows : bool
+        Return every window with its margin instead of only those above ``plan.threshold``.
+
+    Returns
+    -------
+    Windows
+        Boxes in ``frame``'s pixels with their margins.
+    """
+    frame = as_rgb_uint8(frame, name="frame")
+    work, f = _working_frame(frame, plan)
+    cfg = model.config
+    folded = _folded(model)
+    parts = []
+    for k, s in enumerate(plan.scales):
+        band = _band(work, s, cfg)
+        if band is None:
+            continue
+        scores = _score_band(band, model, folded)
+        wins = Windows(_band_boxes(band, cfg, f), scores, np.full(len(scores), k, np.int64))
+        parts.append(wins if all_windows else wins.above(plan.threshold))
+    return Windows.concatenate(parts)

@@ -1,0 +1,410 @@
+"""Track vehicles over video frames: integrate detection heat, find hot blobs, follow them.
+
+Per frame, :meth:`Tracker.update` takes the positive detection windows and their SVM margins and
+
+1. builds the frame's heat map at ``cell``-pixel resolution (:func:`~.heatmap.add_heat`); each
+   window adds ``1 + score_gain * max(score, 0)``, so a confident window counts more than a
+   marginal one while every window counts at least 1;
+2. integrates it, ``integrated = decay * integrated + current``, so evidence accumulates over
+   the last few frames and a flicker of windows fades;
+3. labels the blobs of integrated heat above ``threshold`` and boxes those of plausible size and
+   shape (:func:`~.heatmap.blob_boxes`). A blob is a candidate only if it holds some heat of
+   the *current* frame: integrated heat alone only echoes earlier frames, and counting the echo
+   as a new sighting would let one burst of windows reach ``min_hits`` on its own afterglow;
+4. associates candidates one to one with the live tracks by IoU (see :class:`Tracker`), smooths
+   matched tracks' boxes, ages unmatched ones, retires stale ones and opens new tracks.
+
+The whole state lives in a :class:`TrackerState`, so a video can be processed in chunks:
+``Tracker(config, state=first.state)`` continues exactly where ``first`` stopped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import linear_sum_assignment
+
+from .evaluate import _as_boxes, box_iou
+from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _peaks, add_heat, label_heat
+
+__all__ = ["TrackerConfig", "Track", "TrackerState", "Tracker"]
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Parameters of a :class:`Tracker`.
+
+    Parameters
+    ----------
+    decay : float, default 0.7
+        Weight of the previous integrated heat, in ``[0, 1)``:
+        ``integrated = decay * integrated + current``. 0 uses the current frame only; 1 is
+        refused (heat would never fade). A car covered by heat ``h`` every frame settles at
+        ``h / (1 - decay)``.
+    threshold : float, default 2.5
+        Integrated heat a cell must exceed to belong to a blob, finite and >= 0.
+    cell : int, default 8
+        Heat-map cell side in frame pixels, >= 1.
+    min_hits : int, default 3
+        Frames a track must be matched (including the frame that opened it) before it is
+        confirmed and reported, >= 1.
+    max_misses : int, default 5
+        Consecutive unmatched frames a track survives; it is retired on miss ``max_misses + 1``.
+        >= 0.
+    smoothing : float, default 0.3
+        Weight of the new blob box in a matched track's box,
+        ``box = (1 - smoothing) * box + smoothing * blob``, in ``(0, 1]`` (1: no smoothing).
+    match_iou : float, default 0.2
+        Smallest IoU at which a blob can be matched to a track, in ``(0, 1]``.
+    min_size : (float, float), default (32, 32)
+        Smallest blob box ``(width, height)`` in frame pixels (see :func:`~.heatmap.blob_boxes`).
+    aspect_range : (float, float), default (0.3, 4.0)
+        Inclusive range of blob box ``width / height``.
+    score_gain : float, default 1.0
+        Heat of a window is ``1 + score_gain * max(score, 0)``, finite and >= 0; 0 makes every
+        window count 1 whatever its margin.
+
+    Raises
+    ------
+    ValueError
+        If a value is out of range or of the wrong type; the message names the field.
+    """
+
+    decay: float = 0.7
+    threshold: float = 2.5
+    cell: int = 8
+    min_hits: int = 3
+    max_misses: int = 5
+    smoothing: float = 0.3
+    match_iou: float = 0.2
+    min_size: tuple[float, float] = (32, 32)
+    aspect_range: tuple[float, float] = (0.3, 4.0)
+    score_gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        def real(name: str, ok, rule: str) -> None:
+            value = getattr(self, name)
+            if not _is_real(value) or not np.isfinite(value) or not ok(float(value)):
+                raise ValueError(f"TrackerConfig.{name} must be {rule}; got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+        def integer(name: str, low: int) -> None:
+            value = getattr(self, name)
+            if not _is_int(value) or value < low:
+                raise ValueError(f"TrackerConfig.{name} must be an integer >= {low}; got {value!r}")
+            object.__setattr__(self, name, int(value))
+
+        real("decay", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
+        real("threshold", lambda v: v >= 0.0, "a finite number >= 0")
+        real("smoothing", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
+        real("match_iou", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
+        real("score_gain", lambda v: v >= 0.0, "a finite number >= 0")
+        integer("cell", 1)
+        integer("min_hits", 1)
+        integer("max_misses", 0)
+        try:
+            object.__setattr__(self, "min_size", _check_min_size(self.min_size))
+            object.__setattr__(self, "aspect_range", _check_aspect_range(self.aspect_range))
+        except ValueError as exc:
+            raise ValueError(f"TrackerConfig.{exc}") from None
+
+
+@dataclass
+class Track:
+    """One followed vehicle.
+
+    Attributes
+    ----------
+    track_id : int
+        Unique within a tracker (until :meth:`Tracker.reset`), increasing in order of creation.
+    box : ndarray of float64, shape (4,)
+        Smoothed ``[x1, y1, x2, y2]`` in frame pixels (x2, y2 exclusive).
+    hits : int
+        Frames in which a blob was matched to the track, including the one that opened it.
+    misses : int
+        Consecutive frames without a match, up to now (0 if matched in the last frame).
+    age : int
+        Frames since the track was opened, counting that frame (1 on its first frame).
+    confirmed : bool
+        ``hits`` has reached ``min_hits`` at some point; stays true until the track is retired.
+    score : float
+        Peak integrated heat of the blob last matched to the track.
+    """
+
+    track_id: int
+    box: np.ndarray
+    hits: int = 1
+    misses: int = 0
+    age: int = 1
+    confirmed: bool = False
+    score: float = 0.0
+
+    def int_box(self) -> np.ndarray:
+        """The box rounded to whole pixels (halves up), ``int64`` shape (4,)."""
+        return np.floor(np.asarray(self.box, dtype=np.float64) + 0.5).astype(np.int64)
+
+    def copy(self) -> Track:
+        """An independent copy (the box array is copied)."""
+        return Track(
+            track_id=self.track_id,
+            box=np.array(self.box, dtype=np.float64, copy=True),
+            hits=self.hits,
+            misses=self.misses,
+            age=self.age,
+            confirmed=self.confirmed,
+            score=self.score,
+        )
+
+
+@dataclass
+class TrackerState:
+    """Everything a :class:`Tracker` remembers between frames.
+
+    Attributes
+    ----------
+    integrated : ndarray of float32, shape (H // cell, W // cell), or None
+        Integrated heat; None before the first frame.
+    tracks : list of Track
+        Live tracks (confirmed or not), in increasing ``track_id``.
+    next_id : int
+        Id of the next track to open.
+    frame_index : int
+        Number of frames processed so far (the 0-based index of the next frame).
+    frame_shape : (int, int) or None
+        ``(H, W)`` of the frames seen; None before the first frame.
+    """
+
+    integrated: np.ndarray | None = None
+    tracks: list[Track] = field(default_factory=list)
+    next_id: int = 0
+    frame_index: int = 0
+    frame_shape: tuple[int, int] | None = None
+
+    def copy(self) -> TrackerState:
+        """A deep copy: updating either afterwards leaves the other unchanged."""
+        return TrackerState(
+            integrated=None if self.integrated is None else self.integrated.copy(),
+            tracks=[t.copy() for t in self.tracks],
+            next_id=self.next_id,
+            frame_index=self.frame_index,
+            frame_shape=self.frame_shape,
+        )
+
+
+def _check_state(state: TrackerState, config: TrackerConfig) -> TrackerState:
+    if not _is_int(state.next_id) or not _is_int(state.frame_index) or state.next_id < 0 or state.frame_index < 0:
+        raise ValueError("state.next_id and state.frame_index must be integers >= 0")
+    if (state.integrated is None) != (state.frame_shape is None):
+        raise ValueError("state.integrated and state.frame_shape must both be set or both be None")
+    if state.frame_shape is not None:
+        state.frame_shape = _frame_hw(state.frame_shape)
+        h, w = state.frame_shape
+        expected = (h // config.cell, w // config.cell)
+        arr = state.integrated
+        if not isinstance(arr, np.ndarray) or arr.shape != expected or arr.dtype != np.float32:
+            raise ValueError(
+                f"state.integrated must be float32 of shape {expected} for frames of {state.frame_shape} at "
+                f"cell={config.cell}; got {getattr(arr, 'dtype', type(arr))} of shape {np.shape(arr)} "
+                "(was the state made with another cell size?)"
+            )
+    ids = [t.track_id for t in state.tracks]
+    if any(i >= state.next_id for i in ids) or len(set(ids)) != len(ids):
+        raise ValueError("state.tracks must have distinct track ids below state.next_id")
+    return state
+
+
+def _frame_hw(frame_shape: Any) -> tuple[int, int]:
+    try:
+        dims = tuple(frame_shape)
+    except TypeError:
+        dims = ()
+    if len(dims) not in (2, 3) or not all(_is_int(d) and d > 0 for d in dims):
+        raise ValueError(f"frame_shape must be (H, W) or (H, W, C) of positive integers; got {frame_shape!r}")
+    return int(dims[0]), int(dims[1])
+
+
+class Tracker:
+    """Turn per-frame detection windows into stable, identified vehicle boxes.
+
+    Parameters
+    ----------
+    config : TrackerConfig, default TrackerConfig()
+    state : TrackerState, optional
+        Where to resume (e.g. ``other.state`` to continue another tracker's video). It is copied,
+        so the two trackers never share data. Default: a fresh start.
+
+    Raises
+    ------
+    ValueError
+        If ``state`` is inconsistent or does not fit ``config`` (heat map of another cell size).
+
+    Notes
+    -----
+    **Association.** Candidates and live tracks are matched one to one among the pairs with
+    IoU >= ``match_iou``; the matching has the most pairs and, among those, the largest total
+    IoU (:func:`scipy.optimize.linear_sum_assignment`), as in
+    :func:`vehicle_detection.evaluate.match_frame`.
+
+    **Life cycle.** A matched track takes the blob's box into its moving average, ``hits += 1``,
+    ``misses = 0``, and is confirmed once ``hits >= min_hits``. An unmatched track keeps its
+    box and ``misses += 1``; it is retired when ``misses > max_misses``. An unmatched candidate
+    opens a new unconfirmed track (``hits = 1``) with the next id. Every live track's ``age``
+    grows by one per frame.
+
+    **Reported tracks.** :meth:`update` returns the confirmed live tracks: those matched this
+    frame and those coasting on their last box for at most ``max_misses`` frames, so a car the
+    detector loses for a few frames keeps its box and id. A one-frame false positive is never
+    reported when ``min_hits >= 2``: its blob's later frames hold no current heat, so they are
+    not candidates.
+    """
+
+    def __init__(self, config: TrackerConfig = TrackerConfig(), state: TrackerState | None = None) -> None:
+        if not isinstance(config, TrackerConfig):
+            raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
+        if state is not None and not isinstance(state, TrackerState):
+            raise ValueError(f"state must be a TrackerState or None; got {type(state).__name__}")
+        self._config = config
+        self._state = TrackerState() if state is None else _check_state(state.copy(), config)
+
+    @property
+    def config(self) -> TrackerConfig:
+        """The tracker's parameters."""
+        return self._config
+
+    @property
+    def state(self) -> TrackerState:
+        """The live state (not a copy): read it, snapshot it with ``.copy()``, or pass it to a new
+        :class:`Tracker` (which copies it). Do not modify it."""
+        return self._state
+
+    def reset(self) -> None:
+        """Forget everything, as if new: no heat, no tracks, ids restart at 0."""
+        self._state = TrackerState()
+
+    def update(self, boxes: ArrayLike, scores: ArrayLike | None, frame_shape: tuple[int, ...]) -> list[Track]:
+        """Process one frame's detections.
+
+        Parameters
+        ----------
+        boxes : array_like, shape (n, 4)
+            Positive detection windows ``[x1, y1, x2, y2]`` in frame pixels (x2, y2 exclusive);
+            parts outside the frame are ignored. ``[]`` for a frame without detections.
+        scores : array_like of float, shape (n,), or None
+            Their SVM margins (finite); a window adds heat ``1 + score_gain * max(score, 0)``.
+            None: heat 1 per window.
+        frame_shape : (H, W) or (H, W, C)
+            Shape of the frame; the same for every call (``frame.shape`` will do).
+
+        Returns
+        -------
+        list of Track
+            Copies of the confirmed live tracks (matched this frame, or unmatched for at most
+            ``max_misses`` frames), in increasing ``track_id``. :meth:`Track.int_box` gives
+            whole-pixel boxes.
+
+        Raises
+        ------
+        ValueError
+            If the boxes or scores are malformed, or ``frame_shape`` is invalid or differs from
+            that of earlier frames. The state is unchanged when this is raised.
+        """
+        cfg = self._config
+        st = self._state
+        hw = _frame_hw(frame_shape)
+        if st.frame_shape is not None and hw != st.frame_shape:
+            raise ValueError(
+                f"frame_shape {hw} differs from the earlier frames' {st.frame_shape}; "
+                "use a new Tracker (or reset()) for another video"
+            )
+        win = _as_boxes(boxes, "boxes")
+        if scores is None:
+            weights = np.ones(len(win), dtype=np.float64)
+        else:
+            sc = np.asarray(scores, dtype=np.float64).reshape(-1) if np.size(scores) else np.zeros(0)
+            if sc.shape != (len(win),):
+                raise ValueError(f"scores must have one value per box ({len(win)}); got shape {np.shape(scores)}")
+            if not np.all(np.isfinite(sc)):
+                raise ValueError("scores must be finite")
+            weights = 1.0 + cfg.score_gain * np.maximum(sc, 0.0)
+
+        # 1-2. Heat of this frame, integrated.
+        map_shape = (hw[0] // cfg.cell, hw[1] // cfg.cell)
+        current = add_heat(np.zeros(map_shape, dtype=np.float32), win, weights, cell=cfg.cell)
+        if st.integrated is None:
+            integrated = current
+        else:
+            integrated = st.integrated * np.float32(cfg.decay)
+            integrated += current
+
+        # 3. Candidate blobs: hot enough, plausible, and seen in this frame.
+        labels, n = label_heat(integrated, cfg.threshold)
+        cand, blobs = _blob_boxes(labels, n, cfg.cell, cfg.min_size, cfg.aspect_range)
+        if blobs:
+            fresh = _peaks(current, labels, blobs) > 0
+            cand = cand[fresh]
+            blobs = [b for b, f in zip(blobs, fresh.tolist()) if f]
+        peaks = _peaks(integrated, labels, blobs)
+
+        # 4. Association and track life cycle.
+        tracks = st.tracks
+        matched_track = np.zeros(len(tracks), dtype=bool)
+        matched_cand = np.zeros(len(cand), dtype=bool)
+        if tracks and len(cand):
+            track_boxes = np.stack([t.box for t in tracks])
+            iou = box_iou(track_boxes, cand)
+            valid = iou >= cfg.match_iou
+            if valid.any():
+                # A valid pair is worth more than any sum of IoUs, so the optimum has the most
+                # pairs first, then the largest total IoU.
+                bonus = float(min(iou.shape) + 1)
+                rows, cols = linear_sum_assignment(np.where(valid, bonus + iou, 0.0), maximize=True)
+                s = cfg.smoothing
+                for r, c in zip(rows.tolist(), cols.tolist()):
+                    if not valid[r, c]:
+                        continue
+                    t = tracks[r]
+                    t.box = (1.0 - s) * t.box + s * cand[c]
+                    t.hits += 1
+                    t.misses = 0
+                    t.score = float(peaks[c])
+                    t.confirmed = t.confirmed or t.hits >= cfg.min_hits
+                    matched_track[r] = True
+                    matched_cand[c] = True
+
+        kept: list[Track] = []
+        for t, matched in zip(tracks, matched_track.tolist()):
+            t.age += 1
+            if not matched:
+                t.misses += 1
+                if t.misses > cfg.max_misses:
+                    continue
+            kept.append(t)
+        next_id = st.next_id
+        for c in np.flatnonzero(~matched_cand).tolist():
+            kept.append(
+                Track(
+                    track_id=next_id,
+                    box=cand[c].astype(np.float64),
+                    confirmed=cfg.min_hits <= 1,
+                    score=float(peaks[c]),
+                )
+            )
+            next_id += 1
+
+        st.integrated = integrated
+        st.tracks = kept
+        st.next_id = next_id
+        st.frame_index += 1
+        st.frame_shape = hw
+        return [t.copy() for t in kept if t.confirmed]
