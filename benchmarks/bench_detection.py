@@ -1,0 +1,78 @@
+"""Detection speed on a 1280x720 clip, against a plain decode+encode of the same clip.
+
+    python benchmarks/bench_detection.py [VIDEO] [--model M] [--frames N]
+
+VIDEO defaults to ../shared/data/videos/project_video_clip_A.mp4 when present, else the
+committed test_video.mp4. Prints frames per second for:
+
+* decode+encode: read every frame and write it to an H.264 file, no detection (the floor any
+  video tool pays; measured in the same run as the reference);
+* detection only: the detector and tracker over frames already in memory;
+* end to end: decode, detect, track, draw and encode to a file (``process_video``);
+
+and the ratio of end-to-end to decode+encode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _default_video() -> Path:
+    shared = Path(os.environ.get("VEHICLE_DETECTION_DATA", REPO.parent / "shared" / "data"))
+    clip = shared / "videos" / "project_video_clip_A.mp4"
+    return clip if clip.is_file() else REPO / "test_video.mp4"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("video", nargs="?", default=None)
+    ap.add_argument("--model", default=None, help="model file (default: the embedded model)")
+    ap.add_argument("--frames", type=int, default=None, help="use only the first N frames")
+    args = ap.parse_args()
+
+    from vehicle_detection.classifier import VehicleClassifier
+    from vehicle_detection.detector import Detector
+    from vehicle_detection.video import VideoWriter, probe_video, process_video, read_frames
+
+    video = Path(args.video) if args.video else _default_video()
+    info = probe_video(video)
+    detector = Detector(VehicleClassifier.load(args.model)) if args.model else Detector()
+    frames = list(read_frames(video))[: args.frames]
+    n = len(frames)
+    detector.step(frames[0], detector.new_tracker())  # compile outside the timing
+    print(f"{video.name}: {info.width}x{info.height}, {n} frames, {os.cpu_count()} cores")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t = time.perf_counter()
+        with VideoWriter(Path(tmp) / "copy.mp4", info.fps, info.size) as w:
+            for i, f in enumerate(read_frames(video)):
+                if i >= n:
+                    break
+                w.write(f)
+        copy_fps = n / (time.perf_counter() - t)
+
+        tracker = detector.new_tracker()
+        t = time.perf_counter()
+        for f in frames:
+            detector.step(f, tracker)
+        detect_fps = n / (time.perf_counter() - t)
+
+        t = time.perf_counter()
+        process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, max_frames=n)
+        e2e_fps = n / (time.perf_counter() - t)
+
+    print(f"decode+encode (reference) : {copy_fps:7.1f} fps")
+    print(f"detection only (in memory): {detect_fps:7.1f} fps   ({1000 / detect_fps:.1f} ms/frame)")
+    print(f"end to end (decode, detect, track, draw, encode): {e2e_fps:7.1f} fps   "
+          f"= {e2e_fps / copy_fps:.2f} x decode+encode")
+
+
+if __name__ == "__main__":
+    main()
