@@ -7,7 +7,7 @@ a linear model is, and all the sliding-window search needs: it folds the scaler 
 (:meth:`VehicleClassifier.folded`) and scores every window with dot products.
 
 Model files are ``.npz`` archives read with ``allow_pickle=False``: nothing in them is executed.
-Loading checks the schema, shapes, a SHA-256 of the arrays, the library version and the feature
+Loading checks the schema, shapes, a SHA-256 of the arrays and header, the library version and the feature
 configuration, and refuses anything else with a :class:`~vehicle_detection.errors.ModelError`.
 """
 
@@ -59,8 +59,10 @@ def _version_tuple(v: str) -> tuple[int, ...]:
     return tuple(out)
 
 
-def _digest(arrays: dict[str, np.ndarray]) -> str:
+def _digest(arrays: dict[str, np.ndarray], header: dict) -> str:
+    """SHA-256 over the arrays and the header (minus the digest itself), canonically encoded."""
     h = hashlib.sha256()
+    h.update(json.dumps({k: v for k, v in header.items() if k != "sha256"}, sort_keys=True).encode("utf-8"))
     for name in _ARRAYS:
         a = np.ascontiguousarray(arrays[name], dtype="<f8")
         h.update(name.encode())
@@ -166,9 +168,9 @@ class VehicleClassifier:
             "library_version": self.library_version,
             "feature_format": FEATURE_FORMAT,
             "feature_config": self.config.to_dict(),
-            "arrays_sha256": _digest(arrays),
             "metrics": self.metrics,
         }
+        meta["sha256"] = _digest(arrays, meta)
         meta_bytes = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), dtype=np.uint8)
         path = Path(path)
         with atomic_output(path, overwrite=overwrite) as tmp:
@@ -192,7 +194,10 @@ class VehicleClassifier:
         if not path.is_file():
             raise ModelError(f"{path}: model file not found")
         try:
-            with np.load(path, allow_pickle=False) as npz:
+            npz = np.load(path, allow_pickle=False)
+            if not isinstance(npz, np.lib.npyio.NpzFile):
+                raise ModelError(f"{path}: not a {MODEL_FORMAT} file (a single .npy array, not an .npz archive)")
+            with npz:
                 keys = set(npz.files)
                 expected = {"meta", *_ARRAYS}
                 if keys != expected:
@@ -237,8 +242,8 @@ class VehicleClassifier:
             arrays[name] = a
         if np.any(arrays["scaler_scale"] <= 0):
             raise ModelError(f"{path}: scaler_scale must be positive")
-        if meta.get("arrays_sha256") != _digest(arrays):
-            raise ModelError(f"{path}: arrays do not match the checksum in the header (file altered)")
+        if meta.get("sha256") != _digest(arrays, meta):
+            raise ModelError(f"{path}: contents do not match the checksum in the header (file altered or damaged)")
         metrics = meta.get("metrics") or {}
         if not isinstance(metrics, dict):
             raise ModelError(f"{path}: metrics must be a JSON object")

@@ -52,7 +52,9 @@ __all__ = [
     "convert_color",
     "bin_spatial",
     "color_histogram",
+    "hog_input",
     "hog_features",
+    "SQRT_LUT",
     "extract_features",
     "hog_image",
     "RegionHOG",
@@ -90,6 +92,14 @@ class FeatureConfig:
         HOG cell side, in pixels; must divide ``window``.
     cells_per_block : int
         HOG block side, in cells.
+    signed : bool
+        Signed gradient orientations (0-360 degrees) instead of unsigned (0-180). Signed bins
+        keep the polarity of edges (a car's dark underside against the bright road), which
+        scikit-image's HOG cannot express; unsigned HOG equals ``skimage.feature.hog``.
+    hog_sqrt : bool
+        Square-root gamma compression of each channel before its gradients (the
+        ``transform_sqrt`` of Dalal and Triggs), quantised to 8 bits so that gradients stay
+        integers: ``round(255 * sqrt(v / 255))``.
     spatial_size : int
         Side of the spatially binned patch (block means); 0 disables. Must divide ``window``.
     hist_bins : int
@@ -100,25 +110,38 @@ class FeatureConfig:
 
     color_space: str = "YCrCb"
     hog_channels: tuple[int, ...] = (0, 1, 2)
-    orientations: int = 9
+    orientations: int = 22
     pixels_per_cell: int = 8
     cells_per_block: int = 2
+    signed: bool = True
+    hog_sqrt: bool = True
     spatial_size: int = 16
-    hist_bins: int = 16
+    hist_bins: int = 32
     window: int = 64
 
     def __post_init__(self):
-        object.__setattr__(self, "hog_channels", tuple(int(c) for c in self.hog_channels))
         problems = []
+        try:
+            channels = tuple(self.hog_channels)
+        except TypeError:
+            channels = ()
+        if any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) for c in channels):
+            problems.append(f"hog_channels {self.hog_channels!r} must be integers")
+        else:
+            object.__setattr__(self, "hog_channels", tuple(int(c) for c in channels))
         if self.color_space not in COLOR_SPACES:
             problems.append(f"color_space {self.color_space!r} is not one of {COLOR_SPACES}")
         ch = self.hog_channels
         if not ch or any(c not in (0, 1, 2) for c in ch) or len(set(ch)) != len(ch) or list(ch) != sorted(ch):
             problems.append(f"hog_channels {ch!r} must be distinct, sorted channels from 0, 1, 2")
-        for name in ("orientations", "pixels_per_cell", "cells_per_block", "window"):
+        for name in ("orientations", "pixels_per_cell", "cells_per_block", "window", "spatial_size", "hist_bins"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                problems.append(f"{name} must be a positive integer, got {v!r}")
+            low = 0 if name in ("spatial_size", "hist_bins") else 1
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
+                problems.append(f"{name} must be an integer >= {low}, got {v!r}")
+        for name in ("signed", "hog_sqrt"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                problems.append(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not problems:
             if not 2 <= self.orientations <= 64:
                 problems.append("orientations must be within 2..64")
@@ -210,9 +233,10 @@ def convert_color(image: np.ndarray, color_space: str) -> np.ndarray:
         raise ValueError(f"color_space {color_space!r} is not one of {COLOR_SPACES}")
     if image.dtype != np.uint8 or image.shape[-1] != 3:
         raise InputError(f"convert_color expects RGB uint8 (..., 3), got {image.dtype} {image.shape}")
-    if color_space == "RGB":
+    if color_space == "RGB" or image.size == 0:
         return image
-    flat = np.ascontiguousarray(image).reshape(-1, 1, 3)
+    # One row of pixels: OpenCV's vectorised path, identical to converting image by image.
+    flat = np.ascontiguousarray(image).reshape(1, -1, 3)
     return cv2.cvtColor(flat, _CV2_CODES[color_space]).reshape(image.shape)
 
 
@@ -298,18 +322,26 @@ def color_histogram(image: np.ndarray, bins: int) -> np.ndarray:
 # --- HOG ---------------------------------------------------------------------------------------
 
 
-@lru_cache(maxsize=16)
-def _orientation_lut(orientations: int) -> np.ndarray:
-    """Bin of every integer gradient ``(gy, gx)`` in -255..255, as scikit-image would bin it.
+#: 8-bit square-root gamma table used when ``FeatureConfig.hog_sqrt`` is set.
+SQRT_LUT = np.rint(np.sqrt(np.arange(256) / 255.0) * 255.0).astype(np.uint8)
+SQRT_LUT.setflags(write=False)
 
-    ``lut[gy + 255, gx + 255]``; the value ``orientations`` marks the (measure-zero) gradients
-    scikit-image counts in no bin.
+
+@lru_cache(maxsize=16)
+def _orientation_lut(orientations: int, signed: bool = False) -> np.ndarray:
+    """Bin of every integer gradient ``(gy, gx)`` in -255..255.
+
+    ``lut[gy + 255, gx + 255]``. Unsigned bins are computed as scikit-image computes them (same
+    floating-point expression and float32 bounds), so they agree exactly; the value
+    ``orientations`` marks the (measure-zero) gradients scikit-image counts in no bin. Signed
+    bins split 0-360 degrees the same way.
     """
+    span = 360.0 if signed else 180.0
     g = np.arange(-255, 256, dtype=np.float64)
     gy, gx = np.meshgrid(g, g, indexing="ij")
-    ang = np.arctan2(gy, gx) * (180 / np.pi) % 180
+    ang = np.arctan2(gy, gx) * (180 / np.pi) % span
     # scikit-image compares against bounds stored as C float: [180/n*i, 180/n*(i+1))
-    bounds = np.array([np.float32(180.0 / orientations * i) for i in range(orientations + 1)], dtype=np.float64)
+    bounds = np.array([np.float32(span / orientations * i) for i in range(orientations + 1)], dtype=np.float64)
     lut = np.full(ang.shape, orientations, dtype=np.uint8)
     for i in range(orientations):
         lut[(ang >= bounds[i]) & (ang < bounds[i + 1])] = i
@@ -473,13 +505,18 @@ def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
                         out[i, o + j] = block[j]
 
 
+def hog_input(converted: np.ndarray, config: FeatureConfig) -> np.ndarray:
+    """The pixels the HOG sees: colour-converted pixels, gamma-compressed if ``config.hog_sqrt``."""
+    return SQRT_LUT[converted] if config.hog_sqrt else converted
+
+
 def hog_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
-    """HOG of ``config.hog_channels`` of already colour-converted patches.
+    """HOG of ``config.hog_channels`` of patches already passed through :func:`hog_input`.
 
     Parameters
     ----------
     images : ndarray of uint8, shape (N, H, W, 3)
-        Patches in ``config.color_space``.
+        Patches in ``config.color_space`` (and gamma-compressed: :func:`hog_input`).
     config : FeatureConfig
 
     Returns
@@ -497,7 +534,7 @@ def hog_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
     channels = np.asarray(config.hog_channels, dtype=np.int64)
     out = np.empty((n, len(channels) * n_br * n_bc * cpb * cpb * nb), dtype=np.float32)
     if n:
-        _hog_batch(images, channels, _orientation_lut(nb), ppc, cpb, nb, out)
+        _hog_batch(images, channels, _orientation_lut(nb, config.signed), ppc, cpb, nb, out)
     return out
 
 
@@ -543,13 +580,16 @@ def extract_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
         parts.append(bin_spatial(conv, config.spatial_size))
     if config.hist_bins:
         parts.append(color_histogram(conv, config.hist_bins))
-    parts.append(hog_features(conv, config))
+    parts.append(hog_features(hog_input(conv, config), config))
     feats = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
     return feats[0] if single else feats
 
 
 def hog_image(channel: np.ndarray, config: FeatureConfig) -> np.ndarray:
     """Picture of the HOG of one channel (scikit-image's visualisation), for figures only.
+
+    scikit-image draws unsigned orientations: a signed config is drawn with half as many
+    unsigned bins, after the config's gamma compression.
 
     Parameters
     ----------
@@ -561,9 +601,11 @@ def hog_image(channel: np.ndarray, config: FeatureConfig) -> np.ndarray:
     """
     from skimage.feature import hog
 
+    if config.hog_sqrt:
+        channel = SQRT_LUT[channel]
     _, picture = hog(
         channel,
-        orientations=config.orientations,
+        orientations=config.orientations // 2 if config.signed else config.orientations,
         pixels_per_cell=(config.pixels_per_cell,) * 2,
         cells_per_block=(config.cells_per_block,) * 2,
         block_norm="L2-Hys",
@@ -601,6 +643,7 @@ def region_hog(channel: np.ndarray, config: FeatureConfig) -> RegionHOG:
     Parameters
     ----------
     channel : ndarray of uint8, shape (H, W)
+        One channel of :func:`hog_input` of the region.
     config : FeatureConfig
 
     Returns
@@ -613,7 +656,7 @@ def region_hog(channel: np.ndarray, config: FeatureConfig) -> RegionHOG:
     n_cr, n_cc = channel.shape[0] // ppc, channel.shape[1] // ppc
     cells = np.zeros((n_cr, n_cc, nb), np.float64)
     d = np.zeros((8, n_cr, n_cc, nb), np.float64)
-    _cell_votes(channel, _orientation_lut(nb), ppc, n_cr, n_cc, nb, cells, d, True)
+    _cell_votes(channel, _orientation_lut(nb, config.signed), ppc, n_cr, n_cc, nb, cells, d, True)
     v = np.empty((3, 3, n_cr, n_cc, nb), np.float64)
     v[0, 0] = cells
     v[1, 0] = cells + d[0]

@@ -315,6 +315,22 @@ def _peaks(heat: np.ndarray, labels: np.ndarray, blobs: list[tuple[int, tuple[sl
     return np.array([heat[s][labels[s] == i].max() for i, s in blobs], dtype=np.float64).reshape(len(blobs))
 
 
+def _core_boxes(
+    heat: np.ndarray, labels: np.ndarray, blobs: list[tuple[int, tuple[slice, slice]]], cell: int, fraction: float
+) -> np.ndarray:
+    """Box of the cells of each blob holding at least ``fraction`` of its peak heat, int64 (k, 4).
+
+    Windows overlapping a car only partly (below it, on its shadow) add less heat than the
+    windows centred on it; cutting each blob at a fraction of its own peak keeps its core.
+    """
+    out = np.zeros((len(blobs), 4), dtype=np.int64)
+    for k, (i, s) in enumerate(blobs):
+        h = np.where(labels[s] == i, heat[s], 0.0)
+        rows, cols = np.nonzero(h >= fraction * h.max())
+        out[k] = (s[1].start + cols.min(), s[0].start + rows.min(), s[1].start + cols.max() + 1, s[0].start + rows.max() + 1)
+    return out * cell
+
+
 def blob_boxes(
     labels: ArrayLike,
     n: int,
@@ -389,6 +405,7 @@ def heat_to_boxes(
     min_size: Sequence[float] = _DEFAULT_MIN_SIZE,
     aspect_range: Sequence[float] = _DEFAULT_ASPECT_RANGE,
     connectivity: int = 8,
+    peak_fraction: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Boxes around the blobs of a heat map above a threshold: label, then :func:`blob_boxes`.
 
@@ -402,6 +419,9 @@ def heat_to_boxes(
         As for :func:`blob_boxes`.
     connectivity : {8, 4}, default 8
         As for :func:`label_heat`.
+    peak_fraction : float, default 0.0
+        If positive, each kept blob's box is shrunk to its cells holding at least this fraction
+        of the blob's peak heat (the size and shape filters apply to the whole blob).
 
     Returns
     -------
@@ -419,6 +439,10 @@ def heat_to_boxes(
     cell = _check_cell(cell)
     size = _check_min_size(min_size)
     aspect = _check_aspect_range(aspect_range)
+    if not 0.0 <= peak_fraction < 1.0:
+        raise ValueError(f"peak_fraction must be in [0, 1); got {peak_fraction!r}")
     labels, n = label_heat(arr, threshold, connectivity=connectivity)
     boxes, blobs = _blob_boxes(labels, n, cell, size, aspect)
+    if peak_fraction > 0 and blobs:
+        boxes = _core_boxes(arr, labels, blobs, cell, peak_fraction)
     return boxes, _peaks(arr, labels, blobs)

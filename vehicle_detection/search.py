@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from .classifier import VehicleClassifier
-from .features import FeatureConfig, _block_map, _gather_block, convert_color, extract_features, region_hog
+from .features import FeatureConfig, _block_map, _gather_block, convert_color, extract_features, hog_input, region_hog
 from .images import as_rgb_uint8
 
 __all__ = [
@@ -419,7 +419,8 @@ def _score_band(band: _Band, model: VehicleClassifier, folded: _FoldedModel) -> 
     cfg = model.config
     conv = convert_color(band.image, cfg.color_space)
     ppc, cpb = cfg.pixels_per_cell, cfg.cells_per_block
-    variants = np.stack([region_hog(conv[:, :, ch], cfg).variants for ch in cfg.hog_channels])
+    hog_pixels = hog_input(conv, cfg)
+    variants = np.stack([region_hog(hog_pixels[:, :, ch], cfg).variants for ch in cfg.hog_channels])
     n_cr, n_cc = variants.shape[3:5]
     maps = np.empty((len(variants), len(_MAP_CLASSES), n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size))
     for ch in range(len(variants)):

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
 from .evaluate import _as_boxes, box_iou
-from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _peaks, add_heat, label_heat
+from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat
 
 __all__ = ["TrackerConfig", "Track", "TrackerState", "Tracker"]
 
@@ -71,6 +71,12 @@ class TrackerConfig:
         Smallest blob box ``(width, height)`` in frame pixels (see :func:`~.heatmap.blob_boxes`).
     aspect_range : (float, float), default (0.3, 4.0)
         Inclusive range of blob box ``width / height``.
+    peak_fraction : float, default 0.0
+        If positive, a blob's box is cut to its cells holding at least this fraction of the
+        blob's peak integrated heat (see :func:`~.heatmap.heat_to_boxes`), in ``[0, 1)``.
+    confirm_heat : float, default inf
+        A blob whose peak integrated heat reaches this confirms its track at once, without
+        waiting ``min_hits`` frames (strong evidence, e.g. on a video's first frames).
     score_gain : float, default 1.0
         Heat of a window is ``1 + score_gain * max(score, 0)``, finite and >= 0; 0 makes every
         window count 1 whatever its margin.
@@ -91,6 +97,8 @@ class TrackerConfig:
     min_size: tuple[float, float] = (32, 32)
     aspect_range: tuple[float, float] = (0.3, 4.0)
     score_gain: float = 1.0
+    peak_fraction: float = 0.0
+    confirm_heat: float = float("inf")
 
     def __post_init__(self) -> None:
         def real(name: str, ok, rule: str) -> None:
@@ -110,6 +118,10 @@ class TrackerConfig:
         real("smoothing", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
         real("match_iou", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
         real("score_gain", lambda v: v >= 0.0, "a finite number >= 0")
+        real("peak_fraction", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
+        if not _is_real(self.confirm_heat) or np.isnan(self.confirm_heat) or self.confirm_heat <= 0:
+            raise ValueError(f"TrackerConfig.confirm_heat must be a number > 0 (inf to disable); got {self.confirm_heat!r}")
+        object.__setattr__(self, "confirm_heat", float(self.confirm_heat))
         integer("cell", 1)
         integer("min_hits", 1)
         integer("max_misses", 0)
@@ -355,6 +367,8 @@ class Tracker:
             cand = cand[fresh]
             blobs = [b for b, f in zip(blobs, fresh.tolist()) if f]
         peaks = _peaks(integrated, labels, blobs)
+        if cfg.peak_fraction > 0 and blobs:
+            cand = _core_boxes(integrated, labels, blobs, cfg.cell, cfg.peak_fraction)
 
         # 4. Association and track life cycle.
         tracks = st.tracks
@@ -378,7 +392,7 @@ class Tracker:
                     t.hits += 1
                     t.misses = 0
                     t.score = float(peaks[c])
-                    t.confirmed = t.confirmed or t.hits >= cfg.min_hits
+                    t.confirmed = t.confirmed or t.hits >= cfg.min_hits or t.score >= cfg.confirm_heat
                     matched_track[r] = True
                     matched_cand[c] = True
 
@@ -396,7 +410,7 @@ class Tracker:
                 Track(
                     track_id=next_id,
                     box=cand[c].astype(np.float64),
-                    confirmed=cfg.min_hits <= 1,
+                    confirmed=cfg.min_hits <= 1 or float(peaks[c]) >= cfg.confirm_heat,
                     score=float(peaks[c]),
                 )
             )
