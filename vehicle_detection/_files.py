@@ -21,6 +21,12 @@ __all__ = ["atomic_output", "check_output_path", "PARTIAL_SUFFIX"]
 PARTIAL_SUFFIX = ".partial"
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return a.exists() and b.exists() and os.path.samefile(a, b)
@@ -102,6 +108,7 @@ def atomic_output(
         # Re-check: another process may have created dest while we were writing.
         if dest.exists() and not overwrite:
             raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp, dest)
     except BaseException:
         with suppress(OSError):

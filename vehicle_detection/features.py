@@ -110,7 +110,7 @@ class FeatureConfig:
 
     color_space: str = "YCrCb"
     hog_channels: tuple[int, ...] = (0, 1, 2)
-    orientations: int = 22
+    orientations: int = 16
     pixels_per_cell: int = 8
     cells_per_block: int = 2
     signed: bool = True
