@@ -58,10 +58,9 @@ def main():
                 w.write(f)
         copy_fps = n / (time.perf_counter() - t)
 
-        tracker = detector.new_tracker()
         t = time.perf_counter()
-        for f in frames:
-            detector.step(f, tracker)
+        for _ in detector.track(frames):
+            pass
         detect_fps = n / (time.perf_counter() - t)
 
         t = time.perf_counter()

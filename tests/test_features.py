@@ -440,10 +440,10 @@ def test_extract_features_layout(cfg):
 
 def test_default_config_sizes_by_hand():
     cfg = FeatureConfig()
-    # 16*16*3 spatial, 32*3 hist, 3 channels * 7*7 blocks * 2*2 cells * 22 orientations.
-    assert (cfg.spatial_length, cfg.hist_length, cfg.hog_length) == (768, 96, 12936)
-    assert cfg.n_features == 13800
-    assert cfg.layout() == {"spatial": slice(0, 768), "hist": slice(768, 864), "hog": slice(864, 13800)}
+    # 16*16*3 spatial, 32*3 hist, 3 channels * 7*7 blocks * 2*2 cells * 16 orientations.
+    assert (cfg.spatial_length, cfg.hist_length, cfg.hog_length) == (768, 96, 9408)
+    assert cfg.n_features == 10272
+    assert cfg.layout() == {"spatial": slice(0, 768), "hist": slice(768, 864), "hog": slice(864, 10272)}
 
 
 @pytest.mark.parametrize(

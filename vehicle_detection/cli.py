@@ -1,8 +1,8 @@
 """The ``vehicle-detection`` command.
 
 Subcommands: ``download``, ``train``, ``sweep``, ``detect``, ``evaluate``. Errors a user can
-cause print one line on stderr (``vehicle-detection: error: ...``) and exit non-zero; add
-``--debug`` for the traceback.
+cause, usage errors included, print one line on stderr (``vehicle-detection: error: ...``) and
+exit non-zero; ``--debug`` prints the traceback before that line (the exit code stays the same).
 
 Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command line;
 3 bad input file; 4 bad or mismatched model file; 5 output refused or not writable;
@@ -13,16 +13,45 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
+import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import InputError, VehicleDetectionError
+from .errors import InputError, OutputError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line like every other error (argparse prints the usage first)."""
+
+    def error(self, message: str):
+        self.exit(2, f"vehicle-detection: error: {message} (see '{self.prog} --help')\n")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
@@ -62,7 +91,7 @@ def _feature_config(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vehicle-detection",
         description="Find and track vehicles in dashcam images and video (HOG + linear SVM).",
         epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 bad input, 4 bad model, 5 output refused, 6 download failed, 130 interrupted.",
@@ -78,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train a classifier and report its accuracy")
     p.add_argument("--data-dir", default=None, help="folder with vehicles.zip and non-vehicles.zip (default: $VEHICLE_DETECTION_DATA or ./data)")
     p.add_argument("--model", default=None, help="where to save the model (.npz); omitted: report only")
-    p.add_argument("--C", type=float, default=None, help="SVM regularisation (default: the library's)")
+    p.add_argument("--C", type=_positive_float, default=None, help="SVM regularisation (default: the library's)")
     p.add_argument("--drop-duplicates", action="store_true", help="drop byte-identical duplicate images first")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on the last line")
@@ -94,8 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pixels-per-cell", default="8,16")
     p.add_argument("--cells-per-block", default="2")
     p.add_argument("--color-features", default="16x16,0x0", help="spatial x hist pairs, 0x0 = HOG only (default %(default)s)")
-    p.add_argument("--subsample", type=int, default=None, help="use this many images (random, stratified) for a quick look")
-    p.add_argument("--jobs", type=int, default=2, help="parallel workers (default %(default)s)")
+    p.add_argument("--subsample", type=_positive_int, default=None, help="use this many images (random, stratified) for a quick look")
+    p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the table as JSON (one row per line)")
     _add_common(p)
 
@@ -160,8 +189,11 @@ def _cmd_train(args) -> int:
     config = _feature_config(args)
     if args.model is not None:
         from ._files import check_output_path
+        from .data import CLASSES, default_data_dir
 
-        check_output_path(args.model, overwrite=args.overwrite)
+        # The archives are inputs: --model must never replace one, even with --overwrite.
+        root = default_data_dir(args.data_dir)
+        check_output_path(args.model, overwrite=args.overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
     t = time.perf_counter()
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates)
     load_s = time.perf_counter() - t
@@ -249,6 +281,8 @@ def _load_detector(model_path):
 
 
 def _default_outputs(inp: Path, kind: str):
+    if inp.name in ("", ".", ".."):  # "." or "..": name the outputs after the real folder
+        inp = Path(os.path.abspath(inp))
     if kind == "video":
         return inp.with_name(f"{inp.stem}_detected.mp4"), inp.with_name(f"{inp.stem}_boxes.csv")
     if kind == "image":
@@ -276,6 +310,20 @@ def _cmd_detect(args) -> int:
     default_out, default_boxes = _default_outputs(inp, kind)
     out = Path(args.out) if args.out else default_out
     boxes = Path(args.boxes) if args.boxes else default_boxes
+    # Refuse bad outputs before any work. The model file is an input too.
+    model_inputs = [Path(args.model)] if args.model else []
+    if out.resolve() == boxes.resolve():
+        raise OutputError(f"{out}: the annotated output and the boxes CSV cannot be the same file")
+    if kind == "image":
+        from PIL import Image
+
+        if out.suffix.lower() not in Image.registered_extensions():
+            raise OutputError(f"{out}: unknown image extension {out.suffix!r} for the annotated image")
+    if kind == "folder" and out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder; the annotated images of a folder go into a folder")
+    for o in (out, boxes):
+        if kind != "folder" or o is boxes:
+            check_output_path(o, overwrite=args.overwrite, inputs=[inp, *model_inputs])
     detector = _load_detector(args.model)
     t = time.perf_counter()
     if kind == "video":
@@ -285,7 +333,7 @@ def _cmd_detect(args) -> int:
         return 0
     files = [inp] if kind == "image" else list_images(inp)
     outs = [out] if kind == "image" else [out / f.name for f in files]
-    inputs = [*files]
+    inputs = [*files, *model_inputs]
     for o in [*outs, boxes]:
         check_output_path(o, overwrite=args.overwrite, inputs=inputs)
     rows = []
@@ -300,23 +348,48 @@ def _cmd_detect(args) -> int:
     return 0
 
 
+class _FrameCounter:
+    """A detector that counts the frames it sees (process_video reports boxes, not frames)."""
+
+    def __init__(self, detector) -> None:
+        self.detector = detector
+        self.n_frames = 0
+
+    def new_tracker(self):
+        return self.detector.new_tracker()
+
+    def step(self, frame, tracker):
+        self.n_frames += 1
+        return self.detector.step(frame, tracker)
+
+
 def _cmd_evaluate(args) -> int:
     from .evaluate import evaluate_detections, load_annotations
-    from .video import process_video
+    from .video import probe_video, process_video
 
     labels = load_annotations(args.labels)
-    detector = _load_detector(args.model)
-    last = max(labels.frames) + 1 if labels.frames else 0
+    if not labels.frames:
+        raise InputError(f"{args.labels}: no labelled frames; nothing to score")
+    probe_video(args.video)  # a missing or unreadable video fails before the model loads
+    detector = _FrameCounter(_load_detector(args.model))
+    last = max(labels.frames) + 1
     t = time.perf_counter()
     table = process_video(args.video, None, detector=detector, progress=not args.no_progress, max_frames=last)
     seconds = time.perf_counter() - t
+    if detector.n_frames < last:
+        # Scoring would count the cars of the missing frames as missed: refuse instead.
+        beyond = [f for f in labels.frames if f >= detector.n_frames]
+        raise InputError(
+            f"{args.labels}: labels frame(s) {', '.join(map(str, beyond))}, but {args.video} has only "
+            f"{detector.n_frames} decoded frames (0..{detector.n_frames - 1}); wrong video or labels?"
+        )
     results = evaluate_detections(table.by_frame(), labels, iou_thresholds=(0.5, 0.3))
     for thr, s in results.items():
         print(
             f"IoU >= {thr}: precision {s.precision:.3f}  recall {s.recall:.3f}  F1 {s.f1:.3f}  "
             f"FP/frame {s.fp_per_frame:.2f}  (tp {s.tp}, fp {s.fp}, fn {s.fn}, ignored {s.ignored}, frames {s.n_frames})"
         )
-    print(f"processed {last} frames in {seconds:.1f} s")
+    print(f"processed {detector.n_frames} frames in {seconds:.1f} s")
     if args.json:
         main_scores = results[0.5].as_dict()
         out = {k: main_scores[k] for k in ("precision", "recall", "f1", "fp_per_frame", "tp", "fp", "fn", "ignored", "n_frames")}
@@ -339,23 +412,30 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit code (see module docstring)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    # With --debug the traceback comes first, then the same one-line message and exit code.
     try:
         return _COMMANDS[args.command](args)
     except KeyboardInterrupt:
         if args.debug:
-            raise
+            traceback.print_exc()
         print("vehicle-detection: interrupted", file=sys.stderr)
         return 130
     except VehicleDetectionError as exc:
         if args.debug:
-            raise
-        print(f"vehicle-detection: error: {exc}", file=sys.stderr)
+            traceback.print_exc()
+        print(f"vehicle-detection: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except Exception as exc:  # a bug: one line, and how to see more
         if args.debug:
-            raise
-        print(f"vehicle-detection: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)", file=sys.stderr)
+            traceback.print_exc()
+        hint = "" if args.debug else " (rerun with --debug for the traceback)"
+        print(f"vehicle-detection: internal error: {type(exc).__name__}: {_one_line(exc)}{hint}", file=sys.stderr)
         return 1
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (ffmpeg and file names can bring line breaks)."""
+    return " | ".join(part.strip() for part in str(exc).splitlines() if part.strip())
 
 
 if __name__ == "__main__":  # pragma: no cover

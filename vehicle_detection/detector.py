@@ -12,7 +12,9 @@
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -126,8 +128,10 @@ class Detector:
 
     def step(self, frame: np.ndarray, tracker: Tracker) -> FrameDetection:
         """Detect in one frame and advance ``tracker`` by it."""
+        return self._advance(frame, self.windows(frame), tracker)
+
+    def _advance(self, frame: np.ndarray, wins: Windows, tracker: Tracker) -> FrameDetection:
         index = tracker.state.frame_index
-        wins = self.windows(frame)
         tracks = tracker.update(wins.boxes, self.window_weights(wins), frame.shape)
         return FrameDetection(
             index,
@@ -137,7 +141,35 @@ class Detector:
             wins,
         )
 
-    def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None) -> Iterator[FrameDetection]:
+    def track_frames(
+        self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2
+    ) -> Iterator[tuple[np.ndarray, FrameDetection]]:
+        """Like :meth:`track`, also yielding each frame: ``(frame, detection)`` pairs.
+
+        The search of the next ``workers`` frames runs in a thread pool (its compiled kernels
+        release the GIL), so both cores work; the tracker is advanced in frame order.
+        """
+        tracker = tracker or self.new_tracker()
+        if workers <= 1:
+            for frame in frames:
+                yield frame, self._advance(frame, self.windows(frame), tracker)
+            return
+        pending: deque = deque()
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="search") as pool:
+            try:
+                for frame in frames:
+                    pending.append((frame, pool.submit(self.windows, frame)))
+                    if len(pending) > workers:
+                        f, fut = pending.popleft()
+                        yield f, self._advance(f, fut.result(), tracker)
+                while pending:
+                    f, fut = pending.popleft()
+                    yield f, self._advance(f, fut.result(), tracker)
+            finally:
+                for _, fut in pending:
+                    fut.cancel()
+
+    def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2) -> Iterator[FrameDetection]:
         """Detect and follow vehicles through a sequence of RGB ``uint8`` frames.
 
         Parameters
@@ -147,11 +179,12 @@ class Detector:
         tracker : Tracker, optional
             Pass the tracker of an earlier chunk to continue where it stopped (its frame
             counter continues too); a new one by default.
+        workers : int
+            Frames searched at once (threads).
 
         Yields
         ------
         FrameDetection
         """
-        tracker = tracker or self.new_tracker()
-        for frame in frames:
-            yield self.step(frame, tracker)
+        for _, det in self.track_frames(frames, tracker, workers=workers):
+            yield det

@@ -149,8 +149,13 @@ class FeatureConfig:
                 problems.append("pixels_per_cell must be >= 4 and divide window")
             elif self.cells_per_block >= self.window // self.pixels_per_cell:
                 problems.append("cells_per_block must be smaller than the cells per window")
-            if self.spatial_size < 0 or (self.spatial_size and self.window % self.spatial_size):
+            if self.spatial_size and self.window % self.spatial_size:
                 problems.append("spatial_size must be 0 or divide window")
+            elif self.spatial_size and self.pixels_per_cell % (self.window // self.spatial_size):
+                problems.append(
+                    "spatial bins (window // spatial_size pixels) must divide pixels_per_cell, so that the "
+                    "sliding-window search can share them between windows"
+                )
             if not 0 <= self.hist_bins <= 256:
                 problems.append("hist_bins must be within 0..256")
         if problems:
@@ -349,98 +354,137 @@ def _orientation_lut(orientations: int, signed: bool = False) -> np.ndarray:
     return lut
 
 
-@numba.njit(cache=True, nogil=True)
-def _cell_votes(chan, lut, ppc, n_cr, n_cc, nb, cells, deltas, with_deltas):
-    """Accumulate HOG cell histograms of one channel; optionally the border corrections.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _gradient(chan, y, x, h, w):
+    """Central differences, zero on the image border (scikit-image's convention)."""
+    gx = 0
+    gy = 0
+    if 0 < x < w - 1:
+        gx = np.int32(chan[y, x + 1]) - np.int32(chan[y, x - 1])
+    if 0 < y < h - 1:
+        gy = np.int32(chan[y + 1, x]) - np.int32(chan[y - 1, x])
+    return gx, gy
 
-    cells : (n_cr, n_cc, nb) float64, zeroed.
-    deltas : (8, n_cr, n_cc, nb) float64, zeroed: how a cell's histogram changes when its
-        top / bottom / left / right border is a patch border (0-3), and the extra correction of
-        its four corner pixels when two borders meet (4: top-left, 5: top-right,
-        6: bottom-left, 7: bottom-right).
-    """
+
+@numba.njit(cache=True, nogil=True)
+def _cell_votes(chan, lut, ppc, n_cr, n_cc, nb, cells):
+    """HOG cell histograms of one channel: cells (n_cr, n_cc, nb) float64, zeroed."""
     h, w = chan.shape
-    for y in range(n_cr * ppc):
-        cy = y // ppc
-        ry = y - cy * ppc
-        for x in range(n_cc * ppc):
-            cx = x // ppc
-            gx = 0
-            gy = 0
-            if 0 < x < w - 1:
-                gx = np.int32(chan[y, x + 1]) - np.int32(chan[y, x - 1])
-            if 0 < y < h - 1:
-                gy = np.int32(chan[y + 1, x]) - np.int32(chan[y - 1, x])
-            m = math.sqrt(gx * gx + gy * gy)
-            b = lut[gy + 255, gx + 255]
-            if b < nb:
-                cells[cy, cx, b] += m
-            if not with_deltas:
-                continue
-            rx = x - cx * ppc
-            top = ry == 0
-            bottom = ry == ppc - 1
-            left = rx == 0
-            right = rx == ppc - 1
-            if not (top or bottom or left or right):
-                continue
-            # Vote this pixel casts in a patch whose top/bottom border runs through it: the
-            # vertical gradient is zeroed, leaving |gx| at 0 deg; left/right: |gy| at 90 deg.
-            bh = lut[255, gx + 255]
-            mh = abs(gx)
-            bv = lut[gy + 255, 255]
-            mv = abs(gy)
-            for k, on in ((0, top), (1, bottom)):
-                if on:
-                    if bh < nb:
-                        deltas[k, cy, cx, bh] += mh
+    for cy in range(n_cr):
+        for y in range(cy * ppc, (cy + 1) * ppc):
+            for cx in range(n_cc):
+                for x in range(cx * ppc, (cx + 1) * ppc):
+                    gx, gy = _gradient(chan, y, x, h, w)
+                    b = lut[gy + 255, gx + 255]
                     if b < nb:
-                        deltas[k, cy, cx, b] -= m
-            for k, on in ((2, left), (3, right)):
-                if on:
-                    if bv < nb:
-                        deltas[k, cy, cx, bv] += mv
-                    if b < nb:
-                        deltas[k, cy, cx, b] -= m
-            # At a corner both gradients are zeroed: the vote is 0. The two edge corrections
-            # above sum to (mh - m) + (mv - m); the corner term brings the total to -m.
-            corner = -1
-            if top and left:
-                corner = 4
-            elif top and right:
-                corner = 5
-            elif bottom and left:
-                corner = 6
-            elif bottom and right:
-                corner = 7
-            if corner >= 0:
-                if b < nb:
-                    deltas[corner, cy, cx, b] += m
-                if bh < nb:
-                    deltas[corner, cy, cx, bh] -= mh
-                if bv < nb:
-                    deltas[corner, cy, cx, bv] -= mv
+                        cells[cy, cx, b] += math.sqrt(gx * gx + gy * gy)
 
 
 @numba.njit(cache=True, nogil=True)
+def _region_variants(image, channels, lut, ppc, nb, variants):
+    """Cell histograms of chosen channels of a search region, as seen from any window.
+
+    image (H, W, C) uint8; variants (len(channels), 3, 3, H // ppc, W // ppc, nb) float64, all
+    overwritten. ``variants[k, 0, 0]`` are the cells of channel ``channels[k]``;
+    ``variants[k, v, h]`` the cells as a cropped window sees them when its top (v=1) or bottom
+    (v=2) border and its left (h=1) or right (h=2) border runs along the cell's edge: the crop
+    has no gradient across its border, so a border pixel votes |gx| at 0 deg (top/bottom),
+    |gy| at 90 deg (left/right), or nothing (corner) instead of its full gradient.
+    """
+    h, w = image.shape[0], image.shape[1]
+    n_cr, n_cc = variants.shape[3], variants.shape[4]
+    cells = np.empty((n_cc, nb))
+    # Change of a cell when its top/bottom/left/right edge is a window border (0-3), and the
+    # extra change of its top-left/top-right/bottom-left/bottom-right pixel at a corner (4-7).
+    d = np.empty((8, n_cc, nb))
+    for k in range(channels.shape[0]):
+        ch = channels[k]
+        v = variants[k]
+        for cy in range(n_cr):
+            cells[:] = 0.0
+            d[:] = 0.0
+            for ry in range(ppc):
+                y = cy * ppc + ry
+                top = ry == 0
+                bottom = ry == ppc - 1
+                for cx in range(n_cc):
+                    for rx in range(ppc):
+                        x = cx * ppc + rx
+                        gx = 0
+                        gy = 0
+                        if 0 < x < w - 1:
+                            gx = np.int32(image[y, x + 1, ch]) - np.int32(image[y, x - 1, ch])
+                        if 0 < y < h - 1:
+                            gy = np.int32(image[y + 1, x, ch]) - np.int32(image[y - 1, x, ch])
+                        m = math.sqrt(gx * gx + gy * gy)
+                        b = lut[gy + 255, gx + 255]
+                        if b < nb:
+                            cells[cx, b] += m
+                        left = rx == 0
+                        right = rx == ppc - 1
+                        if not (top or bottom or left or right):
+                            continue
+                        bh = lut[255, gx + 255]
+                        mh = abs(gx)
+                        bv = lut[gy + 255, 255]
+                        mv = abs(gy)
+                        if top or bottom:
+                            e = 0 if top else 1
+                            if bh < nb:
+                                d[e, cx, bh] += mh
+                            if b < nb:
+                                d[e, cx, b] -= m
+                        if left or right:
+                            e = 2 if left else 3
+                            if bv < nb:
+                                d[e, cx, bv] += mv
+                            if b < nb:
+                                d[e, cx, b] -= m
+                        if (top or bottom) and (left or right):
+                            # Both gradients zeroed: the vote is 0. The two edge changes sum to
+                            # (mh - m) + (mv - m); this brings the total to -m.
+                            e = (4 if left else 5) if top else (6 if left else 7)
+                            if b < nb:
+                                d[e, cx, b] += m
+                            if bh < nb:
+                                d[e, cx, bh] -= mh
+                            if bv < nb:
+                                d[e, cx, bv] -= mv
+            for cx in range(n_cc):
+                for o in range(nb):
+                    c = cells[cx, o]
+                    t = c + d[0, cx, o]
+                    bo = c + d[1, cx, o]
+                    v[0, 0, cy, cx, o] = c
+                    v[1, 0, cy, cx, o] = t
+                    v[2, 0, cy, cx, o] = bo
+                    v[0, 1, cy, cx, o] = c + d[2, cx, o]
+                    v[0, 2, cy, cx, o] = c + d[3, cx, o]
+                    v[1, 1, cy, cx, o] = t + d[2, cx, o] + d[4, cx, o]
+                    v[1, 2, cy, cx, o] = t + d[3, cx, o] + d[5, cx, o]
+                    v[2, 1, cy, cx, o] = bo + d[2, cx, o] + d[6, cx, o]
+                    v[2, 2, cy, cx, o] = bo + d[3, cx, o] + d[7, cx, o]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _l2hys(block):
     """L2-Hys normalisation in place (scikit-image's: eps 1e-5, clip at 0.2)."""
     n = block.shape[0]
     s = 0.0
     for j in range(n):
         s += block[j] * block[j]
-    d = math.sqrt(s + 1e-10)
+    inv = 1.0 / math.sqrt(s + 1e-10)
     s = 0.0
     for j in range(n):
-        v = min(block[j] / d, 0.2)
+        v = min(block[j] * inv, 0.2)
         block[j] = v
         s += v * v
-    d = math.sqrt(s + 1e-10)
+    inv = 1.0 / math.sqrt(s + 1e-10)
     for j in range(n):
-        block[j] = block[j] / d
+        block[j] = block[j] * inv
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _gather_block(variants, r, c, cpb, vclass, hclass, block):
     """Copy the cells of the block at (r, c) into ``block``, then L2-Hys normalise it.
 
@@ -479,6 +523,25 @@ def _block_map(variants, cpb, vclass, hclass, out):
             out[r, c, :] = block
 
 
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
+    """Normalised blocks of several border classes, only at the positions marked as needed.
+
+    classes (k, 2) int: (vertical, horizontal) class of each map; need_rows (k, n_br) and
+    need_cols (k, n_bc) bool; out (k, n_br, n_bc, bs), left untouched where not needed.
+    """
+    n_br = out.shape[1]
+    block = np.empty(out.shape[3], np.float64)
+    for r in range(n_br):
+        for k in range(classes.shape[0]):
+            if not need_rows[k, r]:
+                continue
+            for c in range(out.shape[2]):
+                if need_cols[k, c]:
+                    _gather_block(variants, r, c, cpb, classes[k, 0], classes[k, 1], block)
+                    out[k, r, c, :] = block
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
     """HOG of each chosen channel of each patch. images: (N, H, W, C) uint8; out: (N, F) float32."""
@@ -491,11 +554,10 @@ def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
     per_ch = n_br * n_bc * bs
     for i in numba.prange(n):
         variants = np.empty((1, 1, n_cr, n_cc, nb), np.float64)
-        dummy = np.zeros((8, 1, 1, 1), np.float64)
         block = np.empty(bs, np.float64)
         for ci in range(channels.shape[0]):
             variants[:] = 0.0
-            _cell_votes(images[i, :, :, channels[ci]], lut, ppc, n_cr, n_cc, nb, variants[0, 0], dummy, False)
+            _cell_votes(images[i, :, :, channels[ci]], lut, ppc, n_cr, n_cc, nb, variants[0, 0])
             base = ci * per_ch
             for r in range(n_br):
                 for c in range(n_bc):
@@ -507,7 +569,10 @@ def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
 
 def hog_input(converted: np.ndarray, config: FeatureConfig) -> np.ndarray:
     """The pixels the HOG sees: colour-converted pixels, gamma-compressed if ``config.hog_sqrt``."""
-    return SQRT_LUT[converted] if config.hog_sqrt else converted
+    if not config.hog_sqrt:
+        return converted
+    flat = np.ascontiguousarray(converted).reshape(1, -1, converted.shape[-1] if converted.ndim > 2 else 1)
+    return cv2.LUT(flat, SQRT_LUT).reshape(converted.shape) if converted.size else converted
 
 
 def hog_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
@@ -624,8 +689,8 @@ class RegionHOG:
 
     Attributes
     ----------
-    variants : ndarray of float64, shape (3, 3, n_cell_rows, n_cell_cols, orientations)
-        ``variants[0, 0]`` are the cell histograms; ``variants[v, h]`` the histograms a cropped
+    variants : ndarray of float64, shape ([n_channels,] 3, 3, n_cell_rows, n_cell_cols, orientations)
+        ``variants[..., 0, 0, :, :, :]`` are the cell histograms; ``variants[v, h]`` the histograms a cropped
         window sees when its top (v=1) or bottom (v=2) border and its left (h=1) or right (h=2)
         border runs along the cell's edge, where the crop has zero gradient across the border.
     """
@@ -634,37 +699,31 @@ class RegionHOG:
 
     @property
     def cells(self) -> np.ndarray:
-        return self.variants[0, 0]
+        return self.variants[..., 0, 0, :, :, :]
 
 
-def region_hog(channel: np.ndarray, config: FeatureConfig) -> RegionHOG:
-    """Cell histograms of a whole search region (one colour-converted channel).
+def region_hog(image: np.ndarray, config: FeatureConfig, out: np.ndarray | None = None) -> RegionHOG:
+    """Cell histograms of a whole search region, for each of ``config.hog_channels``.
 
     Parameters
     ----------
-    channel : ndarray of uint8, shape (H, W)
-        One channel of :func:`hog_input` of the region.
+    image : ndarray of uint8, shape (H, W, 3) or (H, W)
+        The region after :func:`hog_input`; a 2-D array is one channel.
     config : FeatureConfig
+    out : ndarray of float64, shape (n_channels, 3, 3, H // ppc, W // ppc, orientations), optional
+        Where to write the variants (reused across frames by the search).
 
     Returns
     -------
     RegionHOG
-        Cells cover the top-left ``(H // ppc) x (W // ppc)`` cells of the channel.
+        Its ``variants`` have shape ``(n_channels, 3, 3, ...)``, or ``(3, 3, ...)`` for a 2-D
+        image. Cells cover the top-left ``(H // ppc) x (W // ppc)`` cells.
     """
-    channel = np.ascontiguousarray(channel)
+    single = image.ndim == 2
+    img = np.ascontiguousarray(image[:, :, None] if single else image)
+    channels = np.array([0] if single else config.hog_channels, dtype=np.int64)
     ppc, nb = config.pixels_per_cell, config.orientations
-    n_cr, n_cc = channel.shape[0] // ppc, channel.shape[1] // ppc
-    cells = np.zeros((n_cr, n_cc, nb), np.float64)
-    d = np.zeros((8, n_cr, n_cc, nb), np.float64)
-    _cell_votes(channel, _orientation_lut(nb, config.signed), ppc, n_cr, n_cc, nb, cells, d, True)
-    v = np.empty((3, 3, n_cr, n_cc, nb), np.float64)
-    v[0, 0] = cells
-    v[1, 0] = cells + d[0]
-    v[2, 0] = cells + d[1]
-    v[0, 1] = cells + d[2]
-    v[0, 2] = cells + d[3]
-    v[1, 1] = v[1, 0] + d[2] + d[4]
-    v[1, 2] = v[1, 0] + d[3] + d[5]
-    v[2, 1] = v[2, 0] + d[2] + d[6]
-    v[2, 2] = v[2, 0] + d[3] + d[7]
-    return RegionHOG(v)
+    n_cr, n_cc = img.shape[0] // ppc, img.shape[1] // ppc
+    v = np.empty((len(channels), 3, 3, n_cr, n_cc, nb), np.float64) if out is None else out
+    _region_variants(img, channels, _orientation_lut(nb, config.signed), ppc, nb, v)
+    return RegionHOG(v[0] if single else v)

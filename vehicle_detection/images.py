@@ -11,13 +11,16 @@ RGB 8-bit                 as is
 grayscale (L, 1-bit)      the grey value copied to R, G and B
 RGBA, LA, palette         alpha dropped (no blending), palette expanded
 16-bit (I;16, I)          scaled to 8 bits: ``round(v / 257)``
+16-bit colour PNG, TIFF   the same ``round(v / 257)`` per sample (RGB, RGBA, grey + alpha; alpha
+                          dropped), not Pillow's truncation to the high byte
 CMYK, YCbCr               converted to RGB by Pillow
 float images              refused: 0-1 versus 0-255 is ambiguous (the classic bug)
 ========================  ==========================================================
 
 Arrays passed to the public API go through :func:`as_rgb_uint8`, which applies the same rules to
 arrays (and refuses floats), so that a BGR/float/grey mix-up fails loudly instead of silently
-producing garbage features. OpenCV's BGR order is used only inside :func:`write_image`.
+producing garbage features. Files are read and written with Pillow (RGB); OpenCV, with its BGR
+order, decodes only 16-bit colour files, and its output is reordered to RGB at once.
 """
 
 from __future__ import annotations
@@ -58,6 +61,29 @@ def _from_pil(img: Image.Image, name: str) -> np.ndarray:
     return as_rgb_uint8(arr, name=name)
 
 
+def _is_16bit_colour(img: Image.Image, data: bytes) -> bool:
+    """Whether Pillow would cut this file's 16-bit colour samples to their high byte."""
+    if img.format == "PNG":
+        # IHDR comes first: bit depth at byte 24, colour type at 25 (2 RGB, 4 grey + alpha, 6 RGBA).
+        return len(data) > 25 and data[24] == 16 and data[25] in (2, 4, 6)
+    if img.format == "TIFF" and img.mode not in ("I;16", "I;16B", "I;16L", "I;16N", "I"):
+        bits = getattr(img, "tag_v2", {}).get(258, ())
+        return 16 in (bits if isinstance(bits, tuple) else (bits,))
+    return False
+
+
+def _decode_16bit_colour(data: bytes, size: tuple[int, int]) -> np.ndarray | None:
+    """16-bit RGB of a 16-bit colour file, decoded by OpenCV; None if it cannot."""
+    import cv2
+
+    arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if arr is None or arr.dtype != np.uint16 or arr.shape[:2] != (size[1], size[0]):
+        return None
+    if arr.ndim == 3 and arr.shape[2] in (3, 4):
+        arr = np.ascontiguousarray(arr[:, :, 2::-1])  # BGR(A) -> RGB, alpha dropped
+    return arr
+
+
 def decode_image(data: bytes, name: str = "<bytes>") -> np.ndarray:
     """Decode an encoded image (PNG, JPEG, ...) held in memory.
 
@@ -82,7 +108,11 @@ def decode_image(data: bytes, name: str = "<bytes>") -> np.ndarray:
         raise InputError(f"{name}: empty file, not an image")
     try:
         with Image.open(io.BytesIO(data)) as img:
-            img.load()
+            img.load()  # Pillow checks the whole file (truncation) first
+            if _is_16bit_colour(img, data):
+                arr = _decode_16bit_colour(data, img.size)
+                if arr is not None:
+                    return as_rgb_uint8(arr, name=name)  # round(v / 257)
             return _from_pil(img, name)
     except InputError:
         raise

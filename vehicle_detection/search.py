@@ -21,6 +21,7 @@ video); other frames are resized to that height first and the boxes mapped back.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import cv2
@@ -28,7 +29,7 @@ import numba
 import numpy as np
 
 from .classifier import VehicleClassifier
-from .features import FeatureConfig, _block_map, _gather_block, convert_color, extract_features, hog_input, region_hog
+from .features import FeatureConfig, _block_maps, _gather_block, convert_color, extract_features, hog_input, region_hog
 from .images import as_rgb_uint8
 
 __all__ = [
@@ -83,7 +84,7 @@ class SearchScale:
 
 def _default_scales():
     return (
-        SearchScale(1.0, 400, 496, step=1),
+        SearchScale(1.0, 400, 496, step=2),
         SearchScale(1.5, 400, 544, step=1),
         SearchScale(2.0, 400, 592, step=1),
         SearchScale(3.0, 400, 688, step=1),
@@ -327,10 +328,10 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan =
 # 2 bottom/right. The five non-corner classes are precomputed as block maps (a block of one
 # class is shared by up to blocks_per_window - 2 windows); the four corners are normalised on
 # the fly (each is used by exactly one window).
-_MAP_CLASSES = ((0, 0), (1, 0), (2, 0), (0, 1), (0, 2))
+_MAP_CLASSES = np.array([(0, 0), (1, 0), (2, 0), (0, 1), (0, 2)], dtype=np.int64)
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _score_hog(variants, maps, weights, cpb, rows, cols, out):
     """HOG part of every window's margin.
 
@@ -339,8 +340,8 @@ def _score_hog(variants, maps, weights, cpb, rows, cols, out):
     """
     n_ch, nbw = weights.shape[0], weights.shape[1]
     bs = weights.shape[3]
-    for wr in numba.prange(rows.shape[0]):
-        block = np.empty(bs, np.float64)
+    block = np.empty(bs, np.float64)
+    for wr in range(rows.shape[0]):
         r0 = rows[wr]
         for wc in range(cols.shape[0]):
             c0 = cols[wc]
@@ -362,31 +363,83 @@ def _score_hog(variants, maps, weights, cpb, rows, cols, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _score_spatial(integral, weights, size, f, ppc, rows, cols, out):
-    """Spatial-bin part: integral (H+1, W+1, 3) int64 of the scaled image; weights (size, size, 3)."""
+def _colour_sums(conv, f, ppc, hist_lut, bin_sums, cell_scores):
+    """One pass over the region for the colour features.
+
+    bin_sums (h // f, w // f, 3) float64: sum of each channel over each ``f x f`` block (the
+    spatial bins of any window aligned to the ``f`` grid); cell_scores (h // ppc, w // ppc):
+    sum over each cell's pixels of ``hist_lut[ch, value]``, the histogram weight of the
+    pixel's bin (a window's histogram score is the sum over its cells).
+    """
+    nby, nbx = bin_sums.shape[0], bin_sums.shape[1]
+    for by in range(nby):
+        for bx in range(nbx):
+            for ch in range(3):
+                s = 0
+                for y in range(by * f, (by + 1) * f):
+                    for x in range(bx * f, (bx + 1) * f):
+                        s += conv[y, x, ch]
+                bin_sums[by, bx, ch] = s
+    for cy in range(cell_scores.shape[0]):
+        for cx in range(cell_scores.shape[1]):
+            s = 0.0
+            for y in range(cy * ppc, (cy + 1) * ppc):
+                for x in range(cx * ppc, (cx + 1) * ppc):
+                    s += hist_lut[0, conv[y, x, 0]] + hist_lut[1, conv[y, x, 1]] + hist_lut[2, conv[y, x, 2]]
+            cell_scores[cy, cx] = s
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _score_colour(bin_sums, spatial_w, f, cell_scores, cpw, ppc, rows, cols, with_spatial, with_hist, out):
+    """Add the spatial-bin and histogram parts of every window's margin to ``out``."""
+    size = spatial_w.shape[0]
     inv = 1.0 / (f * f)
     for wr in range(rows.shape[0]):
-        y0 = rows[wr] * ppc
+        r0 = rows[wr]
         for wc in range(cols.shape[0]):
-            x0 = cols[wc] * ppc
+            c0 = cols[wc]
             s = 0.0
-            for by in range(size):
-                ya = y0 + by * f
-                for bx in range(size):
-                    xa = x0 + bx * f
-                    for ch in range(3):
-                        total = integral[ya + f, xa + f, ch] - integral[ya, xa + f, ch] - integral[ya + f, xa, ch] + integral[ya, xa, ch]
-                        s += np.float32(total * inv) * weights[by, bx, ch]
+            if with_spatial:
+                by0 = r0 * ppc // f
+                bx0 = c0 * ppc // f
+                for by in range(size):
+                    for bx in range(size):
+                        for ch in range(3):
+                            # float32 like bin_spatial, so both paths see the same features
+                            s += np.float32(bin_sums[by0 + by, bx0 + bx, ch] * inv) * spatial_w[by, bx, ch]
+            if with_hist:
+                for cy in range(r0, r0 + cpw):
+                    for cx in range(c0, c0 + cpw):
+                        s += cell_scores[cy, cx]
             out[wr, wc] += s
 
 
-def _histogram_score_map(conv: np.ndarray, weights: np.ndarray, bins: int) -> np.ndarray:
-    """Integral image of each pixel's histogram weight: sum over channels of w[ch, bin(v)]."""
-    lut_bins = (np.arange(256) * bins) // 256
-    per_pixel = sum(weights[ch][lut_bins][conv[:, :, ch]] for ch in range(3))
-    integral = np.zeros((per_pixel.shape[0] + 1, per_pixel.shape[1] + 1))
-    np.cumsum(np.cumsum(per_pixel, axis=0), axis=1, out=integral[1:, 1:])
-    return integral
+def _needed_blocks(rows: np.ndarray, cols: np.ndarray, nbw: int, n_br: int, n_bc: int):
+    """Where each map class of ``_MAP_CLASSES`` is used by some window: (5, n_br), (5, n_bc)."""
+
+    def mark(n, starts, offsets):
+        m = np.zeros(n, bool)
+        m[(starts[:, None] + np.asarray(offsets)[None, :]).ravel()] = True
+        return m
+
+    inner = range(1, nbw - 1)
+    r_in, r_top, r_bot = mark(n_br, rows, inner), mark(n_br, rows, [0]), mark(n_br, rows, [nbw - 1])
+    c_in, c_left, c_right = mark(n_bc, cols, inner), mark(n_bc, cols, [0]), mark(n_bc, cols, [nbw - 1])
+    return np.stack([r_in, r_top, r_bot, r_in, r_in]), np.stack([c_in, c_in, c_in, c_left, c_right])
+
+
+_BUFFERS = threading.local()
+
+
+def _buffer(name: str, shape: tuple) -> np.ndarray:
+    """A float64 work array reused across frames (per thread): no page faults per frame."""
+    cache = getattr(_BUFFERS, "arrays", None)
+    if cache is None:
+        cache = _BUFFERS.arrays = {}
+    arr = cache.get(name)
+    if arr is None or arr.shape != shape:
+        arr = cache[name] = np.empty(shape)
+    return arr
 
 
 class _FoldedModel:
@@ -397,8 +450,10 @@ class _FoldedModel:
         w, b = model.folded()
         lay = cfg.layout()
         self.bias = b
-        self.spatial = w[lay["spatial"]].reshape(cfg.spatial_size, cfg.spatial_size, 3) if cfg.spatial_size else None
-        self.hist = w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else None
+        self.spatial = w[lay["spatial"]].reshape(cfg.spatial_size, cfg.spatial_size, 3) if cfg.spatial_size else np.zeros((0, 0, 3))
+        # Weight of each 8-bit value's histogram bin, per channel: (3, 256).
+        hist = w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else np.zeros((3, 1))
+        self.hist_lut = np.ascontiguousarray(hist[:, (np.arange(256) * max(cfg.hist_bins, 1)) // 256])
         nbw = cfg.blocks_per_window
         self.hog = np.ascontiguousarray(w[lay["hog"]].reshape(len(cfg.hog_channels), nbw, nbw, cfg.block_size))
 
@@ -418,27 +473,25 @@ def _folded(model: VehicleClassifier) -> _FoldedModel:
 def _score_band(band: _Band, model: VehicleClassifier, folded: _FoldedModel) -> np.ndarray:
     cfg = model.config
     conv = convert_color(band.image, cfg.color_space)
-    ppc, cpb = cfg.pixels_per_cell, cfg.cells_per_block
+    ppc, cpb, nbw = cfg.pixels_per_cell, cfg.cells_per_block, cfg.blocks_per_window
     hog_pixels = hog_input(conv, cfg)
-    variants = np.stack([region_hog(hog_pixels[:, :, ch], cfg).variants for ch in cfg.hog_channels])
-    n_cr, n_cc = variants.shape[3:5]
-    maps = np.empty((len(variants), len(_MAP_CLASSES), n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size))
-    for ch in range(len(variants)):
-        for m, (vc, hc) in enumerate(_MAP_CLASSES):
-            _block_map(variants[ch], cpb, vc, hc, maps[ch, m])
+    n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
+    n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
+    variants = _buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
+    region_hog(hog_pixels, cfg, out=variants)
+    need_rows, need_cols = _needed_blocks(band.rows, band.cols, nbw, n_br, n_bc)
+    maps = _buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size))
+    for ch, v in enumerate(variants):
+        _block_maps(v, cpb, _MAP_CLASSES, need_rows, need_cols, maps[ch])
     out = np.empty((len(band.rows), len(band.cols)))
     _score_hog(variants, maps, folded.hog, cpb, band.rows, band.cols, out)
-    if cfg.spatial_size:
-        f = cfg.window // cfg.spatial_size
-        integral = np.zeros((conv.shape[0] + 1, conv.shape[1] + 1, 3), np.int64)
-        np.cumsum(np.cumsum(conv, axis=0, dtype=np.int64), axis=1, out=integral[1:, 1:])
-        _score_spatial(integral, folded.spatial, cfg.spatial_size, f, ppc, band.rows, band.cols, out)
-    if cfg.hist_bins:
-        integ = _histogram_score_map(conv, folded.hist, cfg.hist_bins)
-        y0 = band.rows[:, None] * ppc
-        x0 = band.cols[None, :] * ppc
-        side = cfg.window
-        out += integ[y0 + side, x0 + side] - integ[y0, x0 + side] - integ[y0 + side, x0] + integ[y0, x0]
+    if cfg.spatial_size or cfg.hist_bins:
+        f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
+        bin_sums = _buffer("bin_sums", (conv.shape[0] // f, conv.shape[1] // f, 3))
+        cell_scores = _buffer("cell_scores", (n_cr, n_cc))
+        _colour_sums(conv, f, ppc, folded.hist_lut, bin_sums, cell_scores)
+        _score_colour(bin_sums, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
+                      bool(cfg.spatial_size), bool(cfg.hist_bins), out)
     out += folded.bias
     return out.ravel()
 

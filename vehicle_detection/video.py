@@ -990,7 +990,8 @@ def process_video(
         Defaults to ``Detector()`` (the embedded model).
     boxes_csv : path-like, optional
         CSV of every reported box (``frame,x1,y1,x2,y2,track_id,score``), written atomically
-        once the whole video is processed.
+        once the whole video is processed, just before the video is renamed into place; it is
+        removed again if the video then fails, so a failed run leaves neither.
     overwrite : bool
         Replace existing outputs (never the input).
     progress : bool
@@ -1003,6 +1004,7 @@ def process_video(
     BoxTable
         Every reported box, frame by frame (0-based decoded frame index).
     """
+    import contextlib
     from contextlib import ExitStack
 
     from .boxes import BoxTable, write_boxes_csv
@@ -1021,6 +1023,7 @@ def process_video(
     tracker = detector.new_tracker()
     detections = []
     frames = read_frames(path)
+    csv_written = False
     try:
         with ExitStack() as stack:
             writer = None
@@ -1033,8 +1036,8 @@ def process_video(
                 from tqdm import tqdm
 
                 bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
-            for frame in frames if max_frames is None else itertools.islice(frames, max_frames):
-                det = detector.step(frame, tracker)
+            source = frames if max_frames is None else itertools.islice(frames, max_frames)
+            for frame, det in detector.track_frames(source, tracker):
                 detections.append(det)
                 if writer is not None:
                     writer.write(annotate_frame(frame, det.boxes, det.track_ids))
@@ -1047,6 +1050,15 @@ def process_video(
                 # Written before the video is renamed into place: once the video exists under
                 # its final name, the CSV is complete too.
                 write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
+                csv_written = True
+    except BaseException:
+        # The video failed after the CSV was renamed into place (ffmpeg failing to finish the
+        # file, Ctrl-C during its final flush): remove the CSV too, so that no output of a
+        # failed run is left looking finished.
+        if csv_written:
+            with contextlib.suppress(OSError):
+                Path(boxes_csv).unlink()
+        raise
     finally:
         frames.close()
     return table
