@@ -52,7 +52,8 @@ def scenario(n_frames: int = 40, seed: int = 3) -> list[tuple[np.ndarray, np.nda
 # --------------------------------------------------------------------------------------------
 def test_config_defaults():
     cfg = TrackerConfig()
-    assert (cfg.decay, cfg.threshold, cfg.cell, cfg.min_hits, cfg.max_misses) == (0.7, 2.5, 8, 3, 5)
+    assert (cfg.decay, cfg.threshold, cfg.cell, cfg.min_hits, cfg.max_misses) == (0.6, 6.0, 8, 3, 5)
+    assert cfg.peak_fraction == 0.3
     assert (cfg.smoothing, cfg.match_iou, cfg.score_gain) == (0.3, 0.2, 1.0)
     assert cfg.min_size == (32.0, 32.0) and cfg.aspect_range == (0.3, 4.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -127,7 +128,7 @@ def test_score_weights_heat_and_score_gain():
 def test_integration_accumulates_weak_evidence():
     # One window of heat 1 per frame: integrated 1, 1.7, 2.19, 2.533 -> above 2.5 on frame 3,
     # which opens the track; confirmed after 3 hits, on frame 5.
-    tr = Tracker()
+    tr = Tracker(TrackerConfig(decay=0.7, threshold=2.5, peak_fraction=0.0))
     window = [[640, 400, 736, 496]]
     reported = [len(tr.update(window, [0.0], SHAPE)) for _ in range(7)]
     assert reported == [0, 0, 0, 0, 0, 1, 1]
@@ -356,3 +357,18 @@ def test_reset_forgets_everything():
     assert tr.state == TrackerState()
     out = [tr.update(car_windows([300, 300, 428, 396]), np.ones(4), (480, 640)) for _ in range(3)]
     assert [t.track_id for t in out[-1]] == [0]  # ids restart; a new frame size is fine after reset
+
+
+def test_confirmation_backfills_the_frames_before_it():
+    """The frame a track is confirmed, it carries its boxes on the earlier frames (min_hits - 1)."""
+    cfg = TrackerConfig(decay=0.6, threshold=2.0, min_hits=3, peak_fraction=0.0)
+    tr = Tracker(cfg)
+    car = car_windows([600, 420, 696, 516], offsets=[(0, 0), (8, 0), (0, 8), (8, 8)])
+    out = [tr.update(car, np.full(len(car), 1.0), SHAPE) for _ in range(5)]
+    first = next(i for i, r in enumerate(out) if r)
+    assert first == cfg.min_hits - 1  # born after min_hits matched frames, never before
+    (t,) = out[first]
+    assert [i for i, _ in t.backfill] == list(range(first))
+    for _, box in t.backfill:
+        assert box.shape == (4,) and np.all(np.isfinite(box))
+    assert out[first + 1][0].backfill == []  # only on the confirmation frame

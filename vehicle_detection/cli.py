@@ -348,48 +348,38 @@ def _cmd_detect(args) -> int:
     return 0
 
 
-class _FrameCounter:
-    """A detector that counts the frames it sees (process_video reports boxes, not frames)."""
-
-    def __init__(self, detector) -> None:
-        self.detector = detector
-        self.n_frames = 0
-
-    def new_tracker(self):
-        return self.detector.new_tracker()
-
-    def step(self, frame, tracker):
-        self.n_frames += 1
-        return self.detector.step(frame, tracker)
-
-
 def _cmd_evaluate(args) -> int:
+    from contextlib import closing
+    from itertools import islice
+
     from .evaluate import evaluate_detections, load_annotations
-    from .video import probe_video, process_video
+    from .video import process_video, read_frames
 
     labels = load_annotations(args.labels)
     if not labels.frames:
         raise InputError(f"{args.labels}: no labelled frames; nothing to score")
-    probe_video(args.video)  # a missing or unreadable video fails before the model loads
-    detector = _FrameCounter(_load_detector(args.model))
     last = max(labels.frames) + 1
+    # Labels beyond the end of the video would silently count as missed cars: check first, by
+    # decoding (the container's frame count is only an estimate for some formats).
+    with closing(read_frames(args.video)) as frames:
+        n_decoded = sum(1 for _ in islice(frames, last))
+    if n_decoded < last:
+        beyond = [f for f in labels.frames if f >= n_decoded]
+        raise InputError(
+            f"{args.labels}: labels frame(s) {', '.join(map(str, beyond))}, but {args.video} has only "
+            f"{n_decoded} decoded frames (0..{n_decoded - 1}); wrong video or labels?"
+        )
+    detector = _load_detector(args.model)
     t = time.perf_counter()
     table = process_video(args.video, None, detector=detector, progress=not args.no_progress, max_frames=last)
     seconds = time.perf_counter() - t
-    if detector.n_frames < last:
-        # Scoring would count the cars of the missing frames as missed: refuse instead.
-        beyond = [f for f in labels.frames if f >= detector.n_frames]
-        raise InputError(
-            f"{args.labels}: labels frame(s) {', '.join(map(str, beyond))}, but {args.video} has only "
-            f"{detector.n_frames} decoded frames (0..{detector.n_frames - 1}); wrong video or labels?"
-        )
     results = evaluate_detections(table.by_frame(), labels, iou_thresholds=(0.5, 0.3))
     for thr, s in results.items():
         print(
             f"IoU >= {thr}: precision {s.precision:.3f}  recall {s.recall:.3f}  F1 {s.f1:.3f}  "
             f"FP/frame {s.fp_per_frame:.2f}  (tp {s.tp}, fp {s.fp}, fn {s.fn}, ignored {s.ignored}, frames {s.n_frames})"
         )
-    print(f"processed {detector.n_frames} frames in {seconds:.1f} s")
+    print(f"processed {last} frames in {seconds:.1f} s")
     if args.json:
         main_scores = results[0.5].as_dict()
         out = {k: main_scores[k] for k in ("precision", "recall", "f1", "fp_per_frame", "tp", "fp", "fn", "ignored", "n_frames")}

@@ -127,7 +127,7 @@ class Detector:
         return Tracker(self.tracker)
 
     def step(self, frame: np.ndarray, tracker: Tracker) -> FrameDetection:
-        """Detect in one frame and advance ``tracker`` by it."""
+        """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill)."""
         return self._advance(frame, self.windows(frame), tracker)
 
     def _advance(self, frame: np.ndarray, wins: Windows, tracker: Tracker) -> FrameDetection:
@@ -147,24 +147,58 @@ class Detector:
         """Like :meth:`track`, also yielding each frame: ``(frame, detection)`` pairs.
 
         The search of the next ``workers`` frames runs in a thread pool (its compiled kernels
-        release the GIL), so both cores work; the tracker is advanced in frame order.
+        release the GIL), so both cores work; the tracker is advanced in frame order. Output
+        lags ``min_hits - 1`` frames behind the input (fixed-lag smoothing): when a track is
+        confirmed, its boxes on the held-back frames before confirmation are filled in, so a
+        vehicle is reported from the frame it appeared, and still no track is born from a
+        single frame.
         """
         tracker = tracker or self.new_tracker()
-        if workers <= 1:
-            for frame in frames:
-                yield frame, self._advance(frame, self.windows(frame), tracker)
-            return
+        lag = max(0, self.tracker.min_hits - 1)
+        held: deque = deque()  # (frame, index, boxes, ids, scores, windows), oldest first
+
+        def advance(frame, wins):
+            index = tracker.state.frame_index
+            tracks = tracker.update(wins.boxes, self.window_weights(wins), frame.shape)
+            by_index = {entry[1]: entry for entry in held}
+            for t in tracks:
+                for i, box in t.backfill:
+                    if i in by_index:
+                        _, _, boxes, ids, scores, _ = by_index[i]
+                        boxes.append(np.floor(box + 0.5).astype(np.int64))
+                        ids.append(t.track_id)
+                        scores.append(t.score)
+            held.append((frame, index, [t.int_box() for t in tracks], [t.track_id for t in tracks], [t.score for t in tracks], wins))
+
+        def release():
+            frame, index, boxes, ids, scores, wins = held.popleft()
+            order = np.argsort(ids, kind="stable")
+            det = FrameDetection(
+                index,
+                np.array(boxes, dtype=np.int64).reshape(-1, 4)[order],
+                np.array(ids, dtype=np.int64)[order],
+                np.array(scores, dtype=np.float64)[order],
+                wins,
+            )
+            return frame, det
+
         pending: deque = deque()
-        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="search") as pool:
+        with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 for frame in frames:
                     pending.append((frame, pool.submit(self.windows, frame)))
                     if len(pending) > workers:
                         f, fut = pending.popleft()
-                        yield f, self._advance(f, fut.result(), tracker)
+                        advance(f, fut.result())
+                        while len(held) > lag:
+                            yield release()
                 while pending:
                     f, fut = pending.popleft()
-                    yield f, self._advance(f, fut.result(), tracker)
+                    advance(f, fut.result())
+                    while len(held) > lag:
+                        yield release()
+                while held:
+                    yield release()
             finally:
                 for _, fut in pending:
                     fut.cancel()

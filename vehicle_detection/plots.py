@@ -390,24 +390,29 @@ def histogram_figure(patches: Mapping[str, np.ndarray], config):
 
 
 def feature_vector_figure(raw: np.ndarray, scaled: np.ndarray, layout: Mapping[str, slice], *, title: str = ""):
-    """The feature vector of one patch before and after standardisation, its parts shaded."""
-    fig, axes = plt.subplots(2, 1, layout="constrained", figsize=(10, 4.4), sharex=True)
-    shades = {"spatial": "#dbe9f6", "hist": "#fde5cc", "hog": "#e2f2dc"}
-    x = np.arange(len(raw))
-    for ax, vec, what in ((axes[0], raw, "raw"), (axes[1], scaled, "standardised: (x - mean) / std over the training set")):
-        for part, sl in layout.items():
-            if sl.stop > sl.start:
-                ax.axvspan(sl.start, sl.stop, color=shades.get(part, "#eeeeee"), lw=0)
-                ax.text((sl.start + sl.stop) / 2, 1.0, f"{part} ({sl.stop - sl.start})", ha="center", va="top",
-                        fontsize=8, transform=ax.get_xaxis_transform())
-        ax.plot(x, vec, lw=0.4, color="black")
-        ax.set_title(what, fontsize=9, loc="left")
-        ax.tick_params(labelsize=7)
-    axes[0].set_yscale("symlog", linthresh=1.0)
-    axes[0].set_ylabel("value (symlog)", fontsize=8)
-    axes[1].set_ylabel("z-score", fontsize=8)
-    axes[1].set_xlabel("feature index", fontsize=8)
-    axes[1].set_xlim(0, len(raw))
+    """The feature vector of one patch before and after standardisation, one column per part.
+
+    The raw parts live on very different scales (each panel of the top row has its own y axis);
+    after standardisation they share one (bottom row).
+    """
+    parts = [(k, sl) for k, sl in layout.items() if sl.stop > sl.start]
+    widths = [max(0.8, 3.5 * (sl.stop - sl.start) / len(raw)) for _, sl in parts]
+    fig, axes = plt.subplots(2, len(parts), figsize=(10, 4.2), squeeze=False, layout="constrained",
+                             gridspec_kw={"width_ratios": widths}, sharey="row")
+    shades = {"spatial": "#1f77b4", "hist": "#ff7f0e", "hog": "#2ca02c"}
+    axes[0, 0].set_ylabel("raw value (symlog)", fontsize=8)
+    axes[1, 0].set_ylabel("standardised\n(x - mean) / std", fontsize=8)
+    for c, (part, sl) in enumerate(parts):
+        x = np.arange(sl.start, sl.stop)
+        for r, vec in enumerate((raw, scaled)):
+            ax = axes[r, c]
+            ax.plot(x, vec[sl], lw=0.5 if len(x) > 200 else 0.9, color=shades.get(part, "black"))
+            ax.set_xlim(sl.start, sl.stop)
+            ax.tick_params(labelsize=7)
+            ax.axhline(0, color="black", lw=0.4)
+        axes[0, c].set_title(f"{part} ({sl.stop - sl.start:,} values)\nraw {raw[sl].min():.3g} .. {raw[sl].max():.3g}", fontsize=8)
+        axes[1, c].set_xlabel("feature index", fontsize=7)
+    axes[0, 0].set_yscale("symlog", linthresh=0.1)
     if title:
         fig.suptitle(title, fontsize=9)
     return fig

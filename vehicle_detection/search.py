@@ -105,7 +105,7 @@ class SearchPlan:
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
-    threshold: float = 0.0
+    threshold: float = 0.3
     reference_height: int = 720
 
     def __post_init__(self):

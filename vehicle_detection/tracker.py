@@ -47,12 +47,12 @@ class TrackerConfig:
 
     Parameters
     ----------
-    decay : float, default 0.7
+    decay : float, default 0.6
         Weight of the previous integrated heat, in ``[0, 1)``:
         ``integrated = decay * integrated + current``. 0 uses the current frame only; 1 is
         refused (heat would never fade). A car covered by heat ``h`` every frame settles at
         ``h / (1 - decay)``.
-    threshold : float, default 2.5
+    threshold : float, default 6.0
         Integrated heat a cell must exceed to belong to a blob, finite and >= 0.
     cell : int, default 8
         Heat-map cell side in frame pixels, >= 1.
@@ -71,12 +71,9 @@ class TrackerConfig:
         Smallest blob box ``(width, height)`` in frame pixels (see :func:`~.heatmap.blob_boxes`).
     aspect_range : (float, float), default (0.3, 4.0)
         Inclusive range of blob box ``width / height``.
-    peak_fraction : float, default 0.0
+    peak_fraction : float, default 0.3
         If positive, a blob's box is cut to its cells holding at least this fraction of the
         blob's peak integrated heat (see :func:`~.heatmap.heat_to_boxes`), in ``[0, 1)``.
-    confirm_heat : float, default inf
-        A blob whose peak integrated heat reaches this confirms its track at once, without
-        waiting ``min_hits`` frames (strong evidence, e.g. on a video's first frames).
     score_gain : float, default 1.0
         Heat of a window is ``1 + score_gain * max(score, 0)``, finite and >= 0; 0 makes every
         window count 1 whatever its margin.
@@ -87,8 +84,8 @@ class TrackerConfig:
         If a value is out of range or of the wrong type; the message names the field.
     """
 
-    decay: float = 0.7
-    threshold: float = 2.5
+    decay: float = 0.6
+    threshold: float = 6.0
     cell: int = 8
     min_hits: int = 3
     max_misses: int = 5
@@ -97,8 +94,7 @@ class TrackerConfig:
     min_size: tuple[float, float] = (32, 32)
     aspect_range: tuple[float, float] = (0.3, 4.0)
     score_gain: float = 1.0
-    peak_fraction: float = 0.0
-    confirm_heat: float = float("inf")
+    peak_fraction: float = 0.3
 
     def __post_init__(self) -> None:
         def real(name: str, ok, rule: str) -> None:
@@ -119,9 +115,6 @@ class TrackerConfig:
         real("match_iou", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
         real("score_gain", lambda v: v >= 0.0, "a finite number >= 0")
         real("peak_fraction", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
-        if not _is_real(self.confirm_heat) or np.isnan(self.confirm_heat) or self.confirm_heat <= 0:
-            raise ValueError(f"TrackerConfig.confirm_heat must be a number > 0 (inf to disable); got {self.confirm_heat!r}")
-        object.__setattr__(self, "confirm_heat", float(self.confirm_heat))
         integer("cell", 1)
         integer("min_hits", 1)
         integer("max_misses", 0)
@@ -152,6 +145,13 @@ class Track:
         ``hits`` has reached ``min_hits`` at some point; stays true until the track is retired.
     score : float
         Peak integrated heat of the blob last matched to the track.
+    history : list of (int, ndarray)
+        While unconfirmed: ``(frame_index, box)`` of each frame since the track opened.
+    backfill : list of (int, ndarray)
+        Set on the frame the track is confirmed (empty otherwise): its boxes on the earlier
+        frames of its history, so an offline consumer that holds frames back
+        ``min_hits - 1`` frames (:meth:`vehicle_detection.detector.Detector.track`) can report
+        the vehicle from the frame it appeared, while no track is ever born from one frame.
     """
 
     track_id: int
@@ -161,6 +161,8 @@ class Track:
     age: int = 1
     confirmed: bool = False
     score: float = 0.0
+    history: list = field(default_factory=list)
+    backfill: list = field(default_factory=list)
 
     def int_box(self) -> np.ndarray:
         """The box rounded to whole pixels (halves up), ``int64`` shape (4,)."""
@@ -176,6 +178,8 @@ class Track:
             age=self.age,
             confirmed=self.confirmed,
             score=self.score,
+            history=[(i, b.copy()) for i, b in self.history],
+            backfill=[(i, b.copy()) for i, b in self.backfill],
         )
 
 
@@ -392,7 +396,13 @@ class Tracker:
                     t.hits += 1
                     t.misses = 0
                     t.score = float(peaks[c])
-                    t.confirmed = t.confirmed or t.hits >= cfg.min_hits or t.score >= cfg.confirm_heat
+                    t.backfill = []
+                    if not t.confirmed and t.hits >= cfg.min_hits:
+                        t.confirmed = True
+                        t.backfill = t.history
+                        t.history = []
+                    elif not t.confirmed:
+                        t.history.append((st.frame_index, t.box.copy()))
                     matched_track[r] = True
                     matched_cand[c] = True
 
@@ -400,6 +410,7 @@ class Tracker:
         for t, matched in zip(tracks, matched_track.tolist()):
             t.age += 1
             if not matched:
+                t.backfill = []
                 t.misses += 1
                 if t.misses > cfg.max_misses:
                     continue
@@ -410,8 +421,9 @@ class Tracker:
                 Track(
                     track_id=next_id,
                     box=cand[c].astype(np.float64),
-                    confirmed=cfg.min_hits <= 1 or float(peaks[c]) >= cfg.confirm_heat,
+                    confirmed=cfg.min_hits <= 1,
                     score=float(peaks[c]),
+                    history=[] if cfg.min_hits <= 1 else [(st.frame_index, cand[c].astype(np.float64))],
                 )
             )
             next_id += 1

@@ -1,0 +1,71 @@
+"""The detector: single images on real frames, and the fixed-lag tracking over frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vehicle_detection.detector import Detector
+from vehicle_detection.search import Windows
+from vehicle_detection.tracker import TrackerConfig
+
+
+class _Scripted(Detector):
+    """A detector whose windows come from a script instead of a classifier."""
+
+    def __init__(self, script, **kw):
+        super().__init__(model=object(), **kw)  # the model is never used
+        self.script = script
+
+    def windows(self, frame):
+        boxes = self.script(int(frame[0, 0, 0]))
+        boxes = np.asarray(boxes, dtype=np.int64).reshape(-1, 4)
+        return Windows(boxes, np.full(len(boxes), 2.0), np.zeros(len(boxes), np.int64))
+
+
+def _frames(n):
+    # Frame i carries its index in pixel (0, 0) so the scripted search knows which frame it is.
+    out = []
+    for i in range(n):
+        f = np.zeros((720, 1280, 3), np.uint8)
+        f[0, 0, 0] = i
+        out.append(f)
+    return out
+
+
+def _car(i):
+    return [[600 + dx, 420 + dy, 696 + dx, 516 + dy] for dx in (0, 8, 16) for dy in (0, 8)]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_vehicle_reported_from_its_first_frame(workers):
+    det = _Scripted(lambda i: _car(i) if i >= 2 else [], tracker=TrackerConfig(threshold=2.0, min_hits=3))
+    out = list(det.track(_frames(10), workers=workers))
+    assert [d.index for d in out] == list(range(10))
+    reported = [len(d.boxes) for d in out]
+    assert reported == [0, 0] + [1] * 8  # back-filled from frame 2, where the car appeared
+    assert len({int(d.track_ids[0]) for d in out[2:]}) == 1
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_one_frame_false_positive_never_reported(workers):
+    det = _Scripted(lambda i: _car(i) if i == 3 else [], tracker=TrackerConfig(threshold=2.0, min_hits=3))
+    assert all(len(d.boxes) == 0 for d in det.track(_frames(12), workers=workers))
+
+
+def test_track_frames_yields_the_frames_in_order():
+    frames = _frames(7)
+    det = _Scripted(lambda i: [])
+    got = [f for f, _ in det.track_frames(frames)]
+    assert all(a is b for a, b in zip(got, frames)) and len(got) == 7
+
+
+def test_detect_image_on_test_frames(test_frames):
+    det = Detector()
+    for frame in test_frames:
+        res = det.detect_image(frame)
+        assert res.boxes.dtype == np.int64 and res.boxes.shape[1] == 4
+        assert np.all(res.boxes[:, [0, 2]] <= frame.shape[1]) and np.all(res.boxes[:, [1, 3]] <= frame.shape[0])
+        assert res.heat.shape == (frame.shape[0] // 8, frame.shape[1] // 8)
+    # test1.jpg has two cars side by side on the right: both found.
+    assert len(det.detect_image(test_frames[0]).boxes) == 2
