@@ -56,7 +56,8 @@ def check_output_path(
     Raises
     ------
     OutputError
-        If ``dest`` is an input, a folder, or exists and ``overwrite`` is false.
+        If ``dest`` is an input, a folder, below a file instead of a folder, or exists and
+        ``overwrite`` is false.
     """
     dest = Path(dest)
     for src in inputs:
@@ -65,6 +66,11 @@ def check_output_path(
             raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
     if dest.is_dir():
         raise OutputError(f"{dest}: output path is a folder; give a file name")
+    for folder in dest.parents:  # the nearest existing ancestor must be a folder
+        if folder.exists() or folder.is_symlink():
+            if not folder.is_dir():
+                raise OutputError(f"{dest}: cannot write output here: {folder} is a file, not a folder")
+            break
     if dest.exists() and not overwrite:
         raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
     return dest

@@ -337,13 +337,27 @@ def _cmd_detect(args) -> int:
     for o in [*outs, boxes]:
         check_output_path(o, overwrite=args.overwrite, inputs=inputs)
     rows = []
-    for i, (f, o) in enumerate(zip(files, outs)):
-        image = read_image(f)
-        det = detector.detect_image(image)
-        write_image(o, annotate_frame(image, det.boxes), overwrite=args.overwrite, inputs=inputs)
-        rows.extend((i, b, -1, s) for b, s in zip(det.boxes, det.scores))
-        print(f"{f}: {len(det.boxes)} vehicles -> {o}")
-    write_boxes_csv(boxes, BoxTable.from_rows(rows) if rows else BoxTable.empty(), overwrite=args.overwrite, inputs=inputs)
+    new_folders = [d for d in (out, boxes.parent) if kind == "folder" and not d.exists()]
+    written = []
+    try:
+        for i, (f, o) in enumerate(zip(files, outs)):
+            image = read_image(f)
+            det = detector.detect_image(image)
+            written.append(write_image(o, annotate_frame(image, det.boxes), overwrite=args.overwrite, inputs=inputs))
+            rows.extend((i, b, -1, s) for b, s in zip(det.boxes, det.scores))
+            print(f"{f}: {len(det.boxes)} vehicles -> {o}")
+        write_boxes_csv(boxes, BoxTable.from_rows(rows) if rows else BoxTable.empty(), overwrite=args.overwrite, inputs=inputs)
+    except BaseException:
+        # A folder that fails part-way (a corrupt image, Ctrl-C) must not leave a half set of
+        # annotated images that looks like a result: remove what this run wrote.
+        for o in written:
+            o.unlink(missing_ok=True)
+        for d in new_folders:
+            try:
+                d.rmdir()  # only if empty
+            except OSError:
+                pass
+        raise
     print(f"boxes: {boxes}")
     return 0
 

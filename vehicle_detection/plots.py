@@ -45,9 +45,11 @@ __all__ = [
     "window_grid_figure",
     "detection_stages_figure",
     "boxes_grid_figure",
+    "track_frames",
     "frame_sequence_figure",
     "tracks_timeline_figure",
     "labelled_frames_figure",
+    "showcase_configs",
     "sweep_label",
 ]
 
@@ -63,6 +65,8 @@ RANDOM_COLOR = "tab:gray"
 GROUPED_COLOR = "tab:green"
 SCALE_COLORS = ("#00e5ff", "#ffea00", "#ff3df5", "#76ff03", "#ff9100", "#ffffff")
 BOX_COLOR = "#00ff00"
+_ACCENTS = (*SCALE_COLORS, BOX_COLOR, CAR_COLOR, NONCAR_COLOR, RANDOM_COLOR, GROUPED_COLOR, "tab:purple",
+            "red", "orange", "#2f7bff", "#bbbbbb", "black", "white")
 
 
 # --- paths and files ----------------------------------------------------------------------------
@@ -126,13 +130,29 @@ def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100, budget: int = P
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight", pad_inches=0.05, facecolor="white")
     data = buf.getvalue()
     if len(data) > budget:
-        img = Image.open(io.BytesIO(data)).convert("RGB")
         small = io.BytesIO()
-        img.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(small, format="PNG", optimize=True)
+        _quantize(Image.open(io.BytesIO(data)).convert("RGB")).save(small, format="PNG", optimize=True)
         if len(small.getvalue()) < len(data):
             data = small.getvalue()
     path.write_bytes(data)
     return path
+
+
+def _quantize(img):
+    """256-colour version of an RGB PIL image whose palette holds the figures' accent colours exactly.
+
+    A median-cut palette of a photograph has no room for a few pixels of pure cyan or green:
+    box and window outlines would come out in dull look-alikes.
+    """
+    from matplotlib.colors import to_rgb
+    from PIL import Image
+
+    accents = sorted({tuple(int(round(255 * v)) for v in to_rgb(c)) for c in _ACCENTS})
+    base = img.quantize(colors=256 - len(accents), method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    palette = base.getpalette()[: 3 * (256 - len(accents))] + [v for c in accents for v in c]
+    ref = Image.new("P", (1, 1))
+    ref.putpalette(palette)
+    return img.quantize(palette=ref, dither=Image.Dither.NONE)
 
 
 def markdown_table(rows: Sequence[Mapping], columns: Sequence[tuple[str, str, str]]) -> str:
@@ -174,6 +194,28 @@ def _boxes(ax, boxes, color=BOX_COLOR, lw=2.0, labels=None, ls="-", fontsize=7):
         if labels is not None:
             ax.text(x1, y1 - 4, str(labels[i]), color="black", fontsize=fontsize, va="bottom",
                     bbox=dict(fc=color, ec="none", pad=1.0))
+
+
+def _view(axes, w, h, rows=None):
+    """Show pixels ``[0, w) x rows`` (default every row) of a frame in each axis."""
+    top, bottom = rows if rows is not None else (0, h)
+    for ax in np.ravel(axes):
+        ax.set_xlim(0, w)
+        ax.set_ylim(bottom, top)
+
+
+def _tag(ax, text):
+    ax.text(0.01, 0.97, text, color="white", fontsize=7, va="top", transform=ax.transAxes, bbox=dict(fc="black", alpha=0.6, pad=1))
+
+
+def _panel_height(width_in: float, frame_shape, rows) -> float:
+    h, w = frame_shape[:2]
+    span = (rows[1] - rows[0]) if rows is not None else h
+    return width_in * span / w + 0.12
+
+
+def _heat_norm(vmax: float):
+    return PowerNorm(0.5, vmin=0.0, vmax=max(vmax, 1e-6))
 
 
 def _grid(nrows, ncols, cell_w, cell_h, **kw):
@@ -437,10 +479,33 @@ def accuracy_figure(metrics: Mapping):
             ax.text(b.get_x() + b.get_width() / 2, val, f"{val:.4f}", ha="center", va="bottom", fontsize=8)
     ax.set_xticks(x, keys)
     lo = np.floor((min(vals) - 0.005) * 100) / 100
-    ax.set_ylim(lo, 1.0015)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.set_ylim(lo, 1.0 + (1.0 - lo) * 0.3)
+    ax.axhline(1.0, color="black", lw=0.5)
+    ax.legend(fontsize=8, loc="upper center", ncol=2, frameon=False)
     ax.set_title("Held-out scores of the embedded model's configuration (80/20 splits)", fontsize=9)
     return fig
+
+
+def showcase_configs(model_config) -> list:
+    """The feature configurations notebook 3 and ``tools/sweep_features.py`` compare.
+
+    The classic choices (RGB / HLS / YCrCb, 9 unsigned orientations, 8 or 16-pixel cells, one or
+    three HOG channels, with and without colour features), signed orientations, and
+    ``model_config`` (the embedded model's).
+    """
+    from .features import FeatureConfig
+
+    classic = dict(signed=False, hog_sqrt=False, spatial_size=16, hist_bins=32)
+    return [
+        FeatureConfig(color_space="RGB", orientations=9, **classic),
+        FeatureConfig(color_space="HLS", orientations=9, **classic),
+        FeatureConfig(color_space="YCrCb", orientations=9, **classic),
+        FeatureConfig(color_space="YCrCb", orientations=9, pixels_per_cell=16, **classic),
+        FeatureConfig(color_space="YCrCb", orientations=9, hog_channels=(0,), **classic),
+        FeatureConfig(color_space="YCrCb", orientations=9, signed=False, hog_sqrt=False, spatial_size=0, hist_bins=0),
+        FeatureConfig(color_space="YCrCb", orientations=16, signed=True, hog_sqrt=False),
+        model_config,
+    ]
 
 
 def sweep_label(row: Mapping) -> str:
@@ -469,7 +534,7 @@ def sweep_figure(rows: Sequence[Mapping], *, n_images: int | None = None):
     ax.set_xlim(np.floor((min(acc) - 0.01) * 100) / 100, 1.004)
     ax.set_yticks(y, labels, fontsize=8)
     ax.tick_params(axis="x", labelsize=7)
-    ax.legend(fontsize=8, loc="lower left")
+    ax.legend(fontsize=8, loc="lower right")
     ax.set_xlabel("test accuracy", fontsize=8)
     ax2.barh(y, [r["n_features"] for r in rows], color="tab:purple")
     ax2.set_xlabel("features per patch", fontsize=8)
@@ -501,18 +566,19 @@ def confusion_figure(confusion: Mapping[str, int], *, title: str = ""):
 # --- sliding windows ----------------------------------------------------------------------------
 
 
-def window_grid_figure(frame: np.ndarray, plan, config, *, ncols: int = 2):
+def window_grid_figure(frame: np.ndarray, plan, config, *, ncols: int = 2, rows: tuple[int, int] | None = None):
     """One panel per search scale: its band, a tiling of its windows, and a few neighbours.
 
     Neighbouring windows (thick, first row of the band) show the step; the thin grid shows
-    every ``k``-th window, ``k`` chosen so that drawn windows barely overlap.
+    every ``k``-th window, ``k`` chosen so that drawn windows barely overlap. ``rows`` crops
+    the frame shown to ``(top, bottom)`` pixel rows.
     """
     from .search import plan_windows
 
     grids = plan_windows(frame.shape, plan, config)
     n = len(plan.scales)
     nrows = -(-n // ncols)
-    fig, axes = _grid(nrows, ncols, 5.0, 3.0)
+    fig, axes = _grid(nrows, ncols, 5.0, _panel_height(5.0, frame.shape, rows) + 0.2)
     h, w = frame.shape[:2]
     f = h / plan.reference_height
     for k, ax in enumerate(axes.flat):
@@ -541,6 +607,7 @@ def window_grid_figure(frame: np.ndarray, plan, config, *, ncols: int = 2):
             f"rows {s.y_start}-{s.y_stop}, {len(boxes):,} windows",
             fontsize=8,
         )
+    _view(axes, w, h, rows)
     total = sum(len(b) for b in grids)
     fig.suptitle(f"Search grid per scale ({total:,} windows per frame); thin: every k-th window, thick: 4 neighbours", fontsize=9)
     return fig
@@ -552,7 +619,9 @@ def _label_cmap():
     return ListedColormap(colors)
 
 
-def detection_stages_figure(items: Sequence[tuple[str, np.ndarray, object]], detector, *, scale_legend: bool = True):
+def detection_stages_figure(
+    items: Sequence[tuple[str, np.ndarray, object]], detector, *, rows: tuple[int, int] | None = None, scale_legend: bool = True
+):
     """One row per image: hot windows by scale, heat map, labelled blobs, final boxes.
 
     Parameters
@@ -561,11 +630,13 @@ def detection_stages_figure(items: Sequence[tuple[str, np.ndarray, object]], det
         Results of :meth:`Detector.detect_image`.
     detector : Detector
         For its plan (scale names), heat cell size and image threshold.
+    rows : (int, int), optional
+        Crop every panel to these pixel rows (e.g. the road, ``(360, 720)``).
     """
     from .heatmap import label_heat
 
     cell, thr = detector.tracker.cell, detector.image_threshold
-    fig, axes = _grid(len(items), 4, 3.4, 2.05)
+    fig, axes = _grid(len(items), 4, 3.2, _panel_height(3.2, items[0][1].shape, rows))
     cmap = _label_cmap()
     for r, (name, frame, det) in enumerate(items):
         h, w = frame.shape[:2]
@@ -576,24 +647,22 @@ def detection_stages_figure(items: Sequence[tuple[str, np.ndarray, object]], det
             _boxes(axes[r, 0], wins.boxes[wins.scale_index == k], color=SCALE_COLORS[k % len(SCALE_COLORS)], lw=0.7)
         axes[r, 0].set_ylabel(name, fontsize=9)
         _frame_ax(axes[r, 1], frame, dim=0.35)
-        hm = np.ma.masked_less_equal(det.heat, 0)
-        axes[r, 1].imshow(hm, cmap="hot", extent=extent, interpolation="nearest", vmin=0, vmax=max(float(det.heat.max()), thr + 1))
-        axes[r, 1].set_xlim(0, w)
-        axes[r, 1].set_ylim(h, 0)
+        peak = float(det.heat.max())
+        axes[r, 1].imshow(np.ma.masked_less_equal(det.heat, 0), cmap="hot", norm=_heat_norm(max(peak, thr)), extent=extent, interpolation="nearest")
         labels, n = label_heat(det.heat, thr)
         _frame_ax(axes[r, 2], frame, dim=0.35)
         axes[r, 2].imshow(np.ma.masked_equal(np.where(labels > 0, (labels - 1) % 63 + 1, 0), 0), cmap=cmap, vmin=0, vmax=63, extent=extent, interpolation="nearest")
-        axes[r, 2].set_xlim(0, w)
-        axes[r, 2].set_ylim(h, 0)
         _frame_ax(axes[r, 3], frame)
         _boxes(axes[r, 3], det.boxes, lw=2.0, labels=[f"{s:.1f}" for s in det.scores])
         if r == 0:
-            axes[r, 0].set_title("hot windows (colour = scale)", fontsize=9)
-            axes[r, 1].set_title("heat (sum of window margins)", fontsize=9)
-            axes[r, 2].set_title(f"blobs of heat > {thr:g}", fontsize=9)
-            axes[r, 3].set_title("final boxes (peak heat)", fontsize=9)
-        axes[r, 0].text(8, 40, f"{len(wins)} windows", color="white", fontsize=7, bbox=dict(fc="black", alpha=0.6, pad=1))
-        axes[r, 2].text(8, 40, f"{n} blobs", color="white", fontsize=7, bbox=dict(fc="black", alpha=0.6, pad=1))
+            axes[r, 0].set_title("hot windows (colour = window size)", fontsize=9)
+            axes[r, 1].set_title("heat: sum of window margins", fontsize=9)
+            axes[r, 2].set_title(f"labelled blobs of heat > {thr:g}", fontsize=9)
+            axes[r, 3].set_title("final boxes, peak heat", fontsize=9)
+        _tag(axes[r, 0], f"{len(wins)} windows")
+        _tag(axes[r, 1], f"peak {peak:.1f}")
+        _tag(axes[r, 2], f"{n} blobs")
+        _view(axes[r], w, h, rows)
     if scale_legend:
         handles = [Rectangle((0, 0), 1, 1, fc="none", ec=SCALE_COLORS[k % len(SCALE_COLORS)], lw=2) for k in range(len(detector.plan.scales))]
         names = [f"{detector.model.config.window * s.scale:.0f}px" for s in detector.plan.scales]
@@ -601,14 +670,15 @@ def detection_stages_figure(items: Sequence[tuple[str, np.ndarray, object]], det
     return fig
 
 
-def boxes_grid_figure(items: Sequence[tuple[str, np.ndarray, np.ndarray]], *, ncols: int = 3, title: str = ""):
+def boxes_grid_figure(items: Sequence[tuple[str, np.ndarray, np.ndarray]], *, ncols: int = 3, title: str = "", rows: tuple[int, int] | None = None):
     """Frames with boxes drawn, ``ncols`` per row: ``items`` of (title, frame, boxes)."""
     nrows = -(-len(items) // ncols)
-    fig, axes = _grid(nrows, ncols, 4.2, 2.55)
+    fig, axes = _grid(nrows, ncols, 4.2, _panel_height(4.2, items[0][1].shape, rows) + 0.15)
     for ax, item in zip(axes.flat, items):
         name, frame, boxes = item
         _frame_ax(ax, frame, title=f"{name}: {len(boxes)} vehicles")
         _boxes(ax, boxes, lw=2.2)
+        _view(ax, frame.shape[1], frame.shape[0], rows)
     for ax in list(axes.flat)[len(items):]:
         ax.axis("off")
     if title:
@@ -619,7 +689,27 @@ def boxes_grid_figure(items: Sequence[tuple[str, np.ndarray, np.ndarray]], *, nc
 # --- video --------------------------------------------------------------------------------------
 
 
-def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray]], detector):
+def track_frames(detector, frames, first: int, count: int = 6):
+    """Run a detector and a new tracker over frames, keeping ``count`` frames from ``first``.
+
+    Returns
+    -------
+    list of (frame, FrameDetection, integrated heat)
+        What :func:`frame_sequence_figure` draws; the integrated heat is a copy of the
+        tracker's state after the frame.
+    """
+    import itertools
+
+    tracker = detector.new_tracker()
+    records = []
+    for frame in itertools.islice(frames, first + count):
+        det = detector.step(frame, tracker)
+        if det.index >= first:
+            records.append((frame, det, tracker.state.integrated.copy()))
+    return records
+
+
+def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray]], detector, *, rows: tuple[int, int] | None = None):
     """Consecutive frames: hot windows, integrated heat (threshold contour), confirmed tracks.
 
     Parameters
@@ -628,37 +718,40 @@ def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray
         ``integrated`` is a copy of ``tracker.state.integrated`` after the frame.
     detector : Detector
         For the tracker's cell size and threshold.
+    rows : (int, int), optional
+        Crop every panel to these pixel rows.
     """
     cfg = detector.tracker
     cell = cfg.cell
-    vmax = max(float(max(r[2].max() for r in records)), cfg.threshold * 2)
-    fig, axes = _grid(len(records), 3, 3.5, 2.1)
+    norm = _heat_norm(max(float(max(r[2].max() for r in records)), cfg.threshold * 2))
+    fig, axes = _grid(len(records), 3, 3.6, _panel_height(3.6, records[0][0].shape, rows) + 0.05)
     for r, (frame, det, integ) in enumerate(records):
         h, w = frame.shape[:2]
         extent = (0, integ.shape[1] * cell, integ.shape[0] * cell, 0)
         _frame_ax(axes[r, 0], frame)
-        _boxes(axes[r, 0], det.windows.boxes, color="#00e5ff", lw=0.6)
+        _boxes(axes[r, 0], det.windows.boxes, color=SCALE_COLORS[0], lw=0.6)
         axes[r, 0].set_ylabel(f"frame {det.index}", fontsize=9)
-        axes[r, 0].text(8, 40, f"{len(det.windows)} windows", color="white", fontsize=7, bbox=dict(fc="black", alpha=0.6, pad=1))
+        _tag(axes[r, 0], f"{len(det.windows)} windows")
         _frame_ax(axes[r, 1], frame, dim=0.35)
-        axes[r, 1].imshow(np.ma.masked_less_equal(integ, 0), cmap="hot", extent=extent, vmin=0, vmax=vmax, interpolation="nearest")
+        axes[r, 1].imshow(np.ma.masked_less_equal(integ, 0), cmap="hot", norm=norm, extent=extent, interpolation="nearest")
         if (integ > cfg.threshold).any():
             yy, xx = (np.mgrid[0 : integ.shape[0], 0 : integ.shape[1]] + 0.5) * cell
-            axes[r, 1].contour(xx, yy, integ, levels=[cfg.threshold], colors="cyan", linewidths=0.8)
-        axes[r, 1].set_xlim(0, w)
-        axes[r, 1].set_ylim(h, 0)
+            axes[r, 1].contour(xx, yy, integ, levels=[cfg.threshold], colors=SCALE_COLORS[0], linewidths=0.9)
+        _tag(axes[r, 1], f"peak {float(integ.max()):.0f}")
         _frame_ax(axes[r, 2], frame)
         _boxes(axes[r, 2], det.boxes, lw=2.0, labels=[f"car {t}" for t in det.track_ids])
+        _tag(axes[r, 2], f"{len(det.boxes)} reported")
         if r == 0:
             axes[r, 0].set_title("hot windows of the frame", fontsize=9)
             axes[r, 1].set_title(f"integrated heat (decay {cfg.decay:g}), contour at {cfg.threshold:g}", fontsize=9)
             axes[r, 2].set_title(f"confirmed tracks (>= {cfg.min_hits} hits)", fontsize=9)
+        _view(axes[r], w, h, rows)
     return fig
 
 
 def tracks_timeline_figure(table, n_frames: int, *, title: str = ""):
     """Which track is reported in which frame (a :class:`~vehicle_detection.boxes.BoxTable`)."""
-    fig, (ax, ax2) = plt.subplots(2, 1, layout="constrained", figsize=(9, 3.4), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    fig, (ax, ax2) = plt.subplots(2, 1, layout="constrained", figsize=(9, 2.8), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     ids = np.unique(table.track_id)
     for k, tid in enumerate(ids):
         frames = table.frame[table.track_id == tid]

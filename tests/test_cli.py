@@ -1,0 +1,464 @@
+"""The ``vehicle-detection`` command: help, exit codes, one-line errors, outputs, JSON reports.
+
+Error paths run as real subprocesses (``python -m vehicle_detection.cli``), several at a time, so
+that the exit status and the exact stderr are what a shell sees. Successful runs go through
+``main([...])`` in this process, which is much faster (no interpreter and model start-up).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import pytest
+from PIL import Image
+
+from vehicle_detection.boxes import BOXES_CSV_HEADER, read_boxes_table
+from vehicle_detection.cli import main
+from vehicle_detection.classifier import default_model_path
+from vehicle_detection.images import read_image
+from vehicle_detection.video import probe_video, read_frames
+
+REPO = Path(__file__).resolve().parents[1]
+TEST_VIDEO = REPO / "test_video.mp4"
+TEST_IMAGES = REPO / "test_images"
+FFMPEG = imageio_ffmpeg.get_ffmpeg_exe()
+SHARED = Path(os.environ.get("VEHICLE_DETECTION_DATA") or REPO.parent / "shared" / "data")
+ERROR_PREFIX = "vehicle-detection: error: "
+
+needs_media = pytest.mark.skipif(
+    not (TEST_VIDEO.is_file() and (TEST_IMAGES / "test1.jpg").is_file()),
+    reason="test_video.mp4 or test_images/ not in the checkout",
+)
+needs_archives = pytest.mark.skipif(
+    not ((SHARED / "vehicles.zip").is_file() and (SHARED / "non-vehicles.zip").is_file()),
+    reason=f"training archives not found in {SHARED} (set VEHICLE_DETECTION_DATA)",
+)
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def cut_video(src: Path, dest: Path, frames: int) -> Path:
+    subprocess.run(
+        [FFMPEG, "-hide_banner", "-nostdin", "-loglevel", "error", "-y", "-i", str(src), "-frames:v", str(frames),
+         "-c", "copy", str(dest)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    return dest
+
+
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "vehicle_detection.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=300
+    )
+
+
+def last_json(stdout: str) -> dict:
+    lines = stdout.strip().splitlines()
+    doc = json.loads(lines[-1])
+    assert isinstance(doc, dict)
+    return doc
+
+
+def csv_rows(path: Path) -> list[str]:
+    lines = path.read_text().splitlines()
+    assert lines[0] == BOXES_CSV_HEADER == "frame,x1,y1,x2,y2,track_id,score"
+    return lines[1:]
+
+
+# ----------------------------------------------------------------------------------------------
+# --help
+# ----------------------------------------------------------------------------------------------
+
+OPTIONS = {
+    None: ["--version", "download", "train", "sweep", "detect", "evaluate", "Exit codes", "2 usage", "3 bad input",
+           "4 bad model", "5 output refused"],
+    "download": ["--data-dir", "--no-progress", "--debug"],
+    "train": ["--data-dir", "--model", "--C", "--drop-duplicates", "--seed", "--json", "--overwrite", "--color-space",
+              "--hog-channels", "--orientations", "--pixels-per-cell", "--cells-per-block", "--spatial-size",
+              "--hist-bins", "--debug"],
+    "sweep": ["--data-dir", "--color-spaces", "--hog-channels", "--orientations", "--pixels-per-cell",
+              "--cells-per-block", "--color-features", "--subsample", "--jobs", "--json", "--debug"],
+    "detect": ["input", "--out", "--boxes", "--model", "--overwrite", "--no-progress", "--debug"],
+    "evaluate": ["--video", "--labels", "--model", "--json", "--no-progress", "--debug"],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("command", list(OPTIONS), ids=lambda c: c or "top-level")
+def test_help_exits_0_and_lists_the_options(command, capsys):
+    argv = [command, "--help"] if command else ["--help"]
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    assert out.startswith(f"usage: vehicle-detection{' ' + command if command else ''} ")
+    for option in OPTIONS[command]:
+        assert option in out, (option, out)
+
+
+# ----------------------------------------------------------------------------------------------
+# Error paths: exact exit code, exactly one line on stderr, no traceback (in subprocesses)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    """Inputs for the error cases (the media ones only when the checkout has them)."""
+    d = tmp_path_factory.mktemp("cli_inputs")
+    f = {"dir": d}
+    (d / "fake.png").write_text("not a picture\n")
+    (d / "notes.txt").write_text("hello\n")
+    (d / "empty.mp4").write_bytes(b"")
+    (d / "bad.json").write_text('{"frames": {"0": {"cars": [[1, 2, 3]]')
+    (d / "empty_labels.json").write_text('{"frames": {}}')
+    (d / "far.json").write_text('{"frames": {"0": {"cars": []}, "20": {"cars": [[0, 0, 10, 10]]}}}')
+    (d / "a_file").write_text("I am a file, not a folder\n")
+    model = default_model_path().read_bytes()
+    (d / "model.npz").write_bytes(model)
+    tampered = bytearray(model)
+    tampered[len(tampered) // 2] ^= 0xFF  # one flipped byte inside the weights
+    (d / "tampered.npz").write_bytes(bytes(tampered))
+    (d / "evil.npz").write_bytes(pickle.dumps(_Payload()))  # would create EXECUTED if unpickled
+    data = d / "data"
+    data.mkdir()
+    for cls in ("vehicles", "non-vehicles"):
+        with zipfile.ZipFile(data / f"{cls}.zip", "w") as zf:
+            zf.writestr(f"{cls}/readme.txt", "placeholder archive")
+    if TEST_VIDEO.is_file() and (TEST_IMAGES / "test1.jpg").is_file():
+        shutil.copy(TEST_IMAGES / "test1.jpg", d / "street.jpg")
+        shutil.copy(TEST_IMAGES / "test1.jpg", d / "existing.png")
+        cut_video(TEST_VIDEO, d / "clip.mp4", 4)
+        cut_video(TEST_VIDEO, d / "clip8.mp4", 8)
+        video = TEST_VIDEO.read_bytes()
+        (d / "cut.mp4").write_bytes(video[: len(video) // 4])
+        (d / "mixed").mkdir()
+        shutil.copy(TEST_IMAGES / "test1.jpg", d / "mixed" / "a.jpg")
+        (d / "mixed" / "b.png").write_text("not a picture either\n")
+    return f | {p.name: p for p in d.iterdir()}
+
+
+class _Payload:
+    def __reduce__(self):
+        return (os.system, ("touch EXECUTED",))
+
+
+# name: (argv (paths relative to the inputs folder), exit code, fragments of the message, files that
+# must stay byte-identical, needs the media files)
+CASES = {
+    # 2: usage
+    "no-command": ([], 2, ["the following arguments are required: COMMAND"], [], False),
+    "unknown-option": (["detect", "street.jpg", "--bogus"], 2, ["unrecognized arguments: --bogus"], [], False),
+    "missing-argument": (["detect"], 2, ["the following arguments are required: input", "vehicle-detection detect --help"], [], False),
+    "bad-number": (["train", "--C", "-1"], 2, ["argument --C: expected a finite number > 0, got '-1'"], [], False),
+    "bad-jobs": (["sweep", "--jobs", "0"], 2, ["argument --jobs: expected a whole number >= 1, got '0'"], [], False),
+    # 3: bad input
+    "missing-input": (["detect", "nothere.png"], 3, ["nothere.png: no such file or folder"], [], False),
+    "unknown-type": (["detect", "notes.txt"], 3, ["notes.txt: unknown file type '.txt'"], ["notes.txt"], False),
+    "text-as-png": (["detect", "fake.png"], 3, ["fake.png: not an image"], ["fake.png"], False),
+    "corrupt-image-in-folder": (["detect", "mixed"], 3, ["mixed/b.png: not an image"], ["mixed/a.jpg"], True),
+    "empty-video": (["detect", "empty.mp4"], 3, ["empty.mp4: file is empty"], [], False),
+    "truncated-video": (["detect", "cut.mp4"], 3, ["cut.mp4: video is damaged or truncated"], ["cut.mp4"], True),
+    "bad-labels": (["evaluate", "--video", "clip8.mp4", "--labels", "bad.json"], 3, ["bad.json: invalid JSON"], [], True),
+    "no-labels": (["evaluate", "--video", "clip8.mp4", "--labels", "empty_labels.json"], 3,
+                  ["empty_labels.json: no labelled frames"], [], True),
+    "labels-beyond-video": (["evaluate", "--video", "clip8.mp4", "--labels", "far.json"], 3,
+                            ["far.json: labels frame(s) 20, but clip8.mp4 has only 8 decoded frames"], [], True),
+    "missing-data": (["train", "--data-dir", "nowhere"], 3, ["nowhere: data folder not found"], [], False),
+    # 4: bad model
+    "missing-model": (["detect", "street.jpg", "--model", "gone.npz"], 4, ["gone.npz: model file not found"], [], True),
+    "tampered-model": (["detect", "street.jpg", "--model", "tampered.npz"], 4, ["tampered.npz: unreadable model file"], ["street.jpg"], True),
+    "pickled-model": (["detect", "street.jpg", "--model", "evil.npz"], 4, ["evil.npz: unreadable model file"], [], True),
+    # 5: output refused
+    "out-is-input-overwrite": (["detect", "street.jpg", "--out", "sub/../street.jpg", "--overwrite"], 5,
+                               ["output would overwrite the input"], ["street.jpg"], True),
+    "video-out-is-input": (["detect", "clip.mp4", "--out", "clip.mp4", "--overwrite"], 5,
+                           ["clip.mp4: output would overwrite the input"], ["clip.mp4"], True),
+    "boxes-is-input": (["detect", "clip.mp4", "--out", "v.mp4", "--boxes", "clip.mp4", "--overwrite"], 5,
+                       ["clip.mp4: output would overwrite the input"], ["clip.mp4"], True),
+    "boxes-is-model": (["detect", "street.jpg", "--out", "m.png", "--model", "model.npz", "--boxes", "model.npz",
+                        "--overwrite"], 5, ["model.npz: output would overwrite the input"], ["model.npz"], True),
+    "model-over-archive": (["train", "--data-dir", "data", "--model", "data/vehicles.zip", "--overwrite"], 5,
+                           ["vehicles.zip: output would overwrite the input"], ["data/vehicles.zip"], False),
+    "out-exists": (["detect", "street.jpg", "--out", "existing.png"], 5, ["existing.png: output exists; pass --overwrite"],
+                   ["existing.png"], True),
+    "out-is-boxes": (["detect", "street.jpg", "--out", "same.png", "--boxes", "same.png"], 5,
+                     ["same.png: the annotated output and the boxes CSV cannot be the same file"], [], True),
+    "unknown-out-extension": (["detect", "street.jpg", "--out", "x.xyz"], 5, ["x.xyz: unknown image extension '.xyz'"],
+                              [], True),
+    "out-below-a-file": (["detect", "street.jpg", "--out", "a_file/x.png"], 5, ["a_file/x.png: cannot write output here: a_file is a file, not a folder"],
+                         ["a_file"], True),
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def error_runs(files):
+    """Run every case in a subprocess (4 at a time); record the outcome and the protected hashes."""
+    d = files["dir"]
+    runnable = {n: c for n, c in CASES.items() if not c[4] or (d / "street.jpg").exists()}
+    before = {n: {p: sha256(d / p) for p in c[3]} for n, c in runnable.items()}
+    listing = sorted(p.name for p in d.iterdir())
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        futures = {n: pool.submit(run_cli, *c[0], cwd=d) for n, c in runnable.items()}
+        futures["--debug"] = pool.submit(run_cli, "detect", "nothere.png", "--debug", cwd=d)
+        exe = shutil.which("vehicle-detection")
+        if exe:
+            futures["console-script"] = pool.submit(
+                subprocess.run, [exe, "detect", "nothere.png"], capture_output=True, text=True, cwd=d, timeout=300
+            )
+        results = {n: f.result() for n, f in futures.items()}
+    after = {n: {p: sha256(d / p) for p in c[3]} for n, c in runnable.items()}
+    return results, before, after, listing, sorted(p.name for p in d.iterdir())
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_error_path(name, error_runs, files):
+    results, before, after, _, _ = error_runs
+    if name not in results:
+        pytest.skip("test_video.mp4 or test_images/ not in the checkout")
+    argv, code, fragments, _, _ = CASES[name]
+    proc = results[name]
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1, proc.stderr  # exactly one line, no traceback
+    assert lines[0].startswith(ERROR_PREFIX), lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0], (fragment, lines[0])
+    assert proc.returncode == code, (proc.returncode, lines[0])
+    assert before[name] == after[name]  # inputs and refused outputs are byte-identical
+
+
+def test_errors_leave_no_outputs(error_runs):
+    *_, listing_before, listing_after = error_runs
+    assert listing_after == listing_before  # nothing created: no output, no .partial, no EXECUTED
+
+
+def test_debug_shows_the_traceback_and_keeps_the_exit_code(error_runs):
+    proc = error_runs[0]["--debug"]
+    assert proc.stderr.startswith("Traceback (most recent call last):")
+    assert "InputError" in proc.stderr
+    assert proc.stderr.splitlines()[-1] == f"{ERROR_PREFIX}nothere.png: no such file or folder"
+    assert proc.returncode == 3
+
+
+def test_installed_console_script(error_runs):
+    if "console-script" not in error_runs[0]:
+        pytest.skip("the vehicle-detection script is not on PATH")
+    proc = error_runs[0]["console-script"]
+    assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}nothere.png: no such file or folder"]
+    assert proc.returncode == 3
+
+
+def test_interrupted_message_is_one_line(monkeypatch, capsys):
+    import vehicle_detection.cli as cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(cli._COMMANDS, "detect", interrupted)
+    assert main(["detect", "x.png"]) == 130
+    assert capsys.readouterr().err.splitlines() == ["vehicle-detection: interrupted"]
+
+
+# ----------------------------------------------------------------------------------------------
+# detect: image, folder, video
+# ----------------------------------------------------------------------------------------------
+
+
+def _api_detect(path: Path):
+    from vehicle_detection.detector import Detector
+
+    det = Detector().detect_image(read_image(path))
+    return [(b.tolist(), round(float(s), 4)) for b, s in zip(det.boxes, det.scores)]
+
+
+def _table_rows(table, frame):
+    keep = table.frame == frame
+    return [(b.tolist(), round(float(s), 4)) for b, s in zip(table.boxes[keep], table.score[keep])]
+
+
+@needs_media
+def test_detect_image_writes_next_to_the_input(tmp_path, capsys):
+    img = tmp_path / "street.jpg"
+    shutil.copy(TEST_IMAGES / "test1.jpg", img)
+    before = sha256(img)
+    assert main(["detect", str(img)]) == 0
+    out, boxes = tmp_path / "street_detected.jpg", tmp_path / "street_boxes.csv"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([img.name, out.name, boxes.name])
+    assert sha256(img) == before
+    assert read_image(out).shape == read_image(img).shape
+    table = read_boxes_table(boxes)
+    assert len(csv_rows(boxes)) == len(table)
+    assert set(table.frame.tolist()) <= {0} and set(table.track_id.tolist()) <= {-1}
+    assert _table_rows(table, 0) == _api_detect(img)
+    assert f"{len(table)} vehicles" in capsys.readouterr().out
+    drawn = read_image(out).astype(int)
+    for x1, y1, x2, _ in table.boxes:  # the top edge of each box is drawn green
+        r, g, b = drawn[y1 + 1, (x1 + x2) // 2]
+        assert g > 180 and r < 100 and b < 100
+
+
+@needs_media
+def test_detect_folder_frames_are_sorted_positions(tmp_path):
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    shutil.copy(TEST_IMAGES / "test1.jpg", folder / "b_street.jpg")
+    Image.fromarray(np.full((720, 1280), 90, np.uint8)).save(folder / "a_grey.png")  # grayscale
+    shutil.copy(TEST_IMAGES / "test4.jpg", folder / "c_street.JPG")
+    (folder / "notes.txt").write_text("not an image: skipped")
+    before = {p.name: sha256(p) for p in folder.iterdir()}
+    assert main(["detect", str(folder)]) == 0
+    out = tmp_path / "shots_detected"
+    assert sorted(p.name for p in out.iterdir()) == ["a_grey.png", "b_street.jpg", "boxes.csv", "c_street.JPG"]
+    assert {p.name: sha256(p) for p in folder.iterdir()} == before
+    table = read_boxes_table(out / "boxes.csv")
+    assert set(table.frame.tolist()) <= {0, 1, 2}
+    for i, name in enumerate(["a_grey.png", "b_street.jpg", "c_street.JPG"]):
+        assert _table_rows(table, i) == _api_detect(folder / name), name
+
+
+@needs_media
+def test_detect_out_in_a_missing_folder_creates_it(tmp_path):
+    img = tmp_path / "street.jpg"
+    shutil.copy(TEST_IMAGES / "test1.jpg", img)
+    out, boxes = tmp_path / "new" / "deeper" / "x.png", tmp_path / "other" / "b.csv"
+    assert main(["detect", str(img), "--out", str(out), "--boxes", str(boxes)]) == 0
+    assert read_image(out).shape == (720, 1280, 3)
+    csv_rows(boxes)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new", "other", "street.jpg"]
+
+
+def test_detect_current_folder(tmp_path, monkeypatch):
+    # "." has no name of its own: the outputs are named after the real folder, beside it.
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    Image.fromarray(np.full((72, 128, 3), 90, np.uint8)).save(shots / "grey.png")
+    monkeypatch.chdir(shots)
+    assert main(["detect", "."]) == 0
+    assert sorted(p.name for p in (tmp_path / "shots_detected").iterdir()) == ["boxes.csv", "grey.png"]
+    assert sorted(p.name for p in shots.iterdir()) == ["grey.png"]
+
+
+@pytest.fixture(scope="module")
+def detected_clip(tmp_path_factory):
+    """``detect clip8.mp4`` with default outputs, run once in this process."""
+    if not TEST_VIDEO.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    d = tmp_path_factory.mktemp("clip")
+    clip = cut_video(TEST_VIDEO, d / "clip8.mp4", 8)
+    before = sha256(clip)
+    assert main(["detect", str(clip), "--no-progress"]) == 0
+    return clip, before
+
+
+def test_detect_video_outputs(detected_clip):
+    clip, before = detected_clip
+    out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
+    assert sorted(p.name for p in clip.parent.iterdir()) == sorted([clip.name, out.name, boxes.name])
+    assert sha256(clip) == before
+    n_decoded = sum(1 for _ in read_frames(clip))
+    info = probe_video(out)
+    assert info.size == probe_video(clip).size
+    assert sum(1 for _ in read_frames(out)) == n_decoded == 8
+    rows = csv_rows(boxes)
+    table = read_boxes_table(boxes)
+    assert len(rows) == len(table) > 0
+    assert all(0 <= f < n_decoded for f in table.frame.tolist())
+    assert np.all(table.track_id >= 0)
+
+
+def test_detect_video_second_run_needs_overwrite(detected_clip):
+    clip, before = detected_clip
+    out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
+    outputs = {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)}
+    proc = run_cli("detect", str(clip), "--no-progress")
+    assert proc.returncode == 5
+    assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}{out}: output exists; pass --overwrite (overwrite=True) to replace it"]
+    assert {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)} == outputs
+    assert main(["detect", str(clip), "--no-progress", "--overwrite"]) == 0
+    for p, (_, inode) in outputs.items():
+        assert p.stat().st_ino != inode  # replaced by a new, complete file
+    assert sha256(clip) == before
+    assert not list(clip.parent.glob(".*.partial"))
+    # An --out in a folder that does not exist yet: created.
+    out2, boxes2 = clip.parent / "new" / "deeper" / "v.mp4", clip.parent / "other" / "v.csv"
+    assert main(["detect", str(clip), "--no-progress", "--out", str(out2), "--boxes", str(boxes2)]) == 0
+    assert probe_video(out2).n_frames == 8
+    assert read_boxes_table(boxes2).frame.tolist() == read_boxes_table(boxes).frame.tolist()
+
+
+def test_readme_documents_the_exit_codes():
+    from vehicle_detection.errors import DownloadError, InputError, ModelError, OutputError
+
+    readme = REPO / "README.md"
+    assert readme.is_file(), "README.md is missing (pyproject.toml names it as the project's readme)"
+    text = " ".join(readme.read_text().split())
+    found = re.search(r"exit codes\W+(.{0,800})", text, re.IGNORECASE)
+    assert found, "README.md has no 'Exit codes' paragraph"
+    paragraph = found.group(1).lower()
+    documented = {2: "usage|command line", InputError.exit_code: "input", ModelError.exit_code: "model",
+                  OutputError.exit_code: "output", DownloadError.exit_code: "download", 130: "interrupt"}  # fmt: skip
+    assert sorted(documented) == [2, 3, 4, 5, 6, 130]
+    for code, meaning in documented.items():
+        assert re.search(rf"\b{code}\b[^;]*?({meaning})", paragraph), (code, paragraph)
+
+
+# ----------------------------------------------------------------------------------------------
+# train --json and evaluate --json
+# ----------------------------------------------------------------------------------------------
+
+
+@needs_archives
+def test_train_json_on_a_small_data_folder(tmp_path, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    for cls in ("vehicles", "non-vehicles"):
+        with zipfile.ZipFile(SHARED / f"{cls}.zip") as src, zipfile.ZipFile(data / f"{cls}.zip", "w") as dst:
+            names = sorted(n for n in src.namelist() if n.endswith(".png"))
+            for name in names[:: len(names) // 150][:150]:  # every folder, many file-number blocks
+                dst.writestr(name, src.read(name))
+    model = tmp_path / "m.npz"
+    assert main(["train", "--data-dir", str(data), "--json", "--model", str(model)]) == 0
+    report = last_json(capsys.readouterr().out)
+    keys = {"random_split_accuracy", "grouped_split_accuracy", "n_train", "n_test", "feature_seconds", "fit_seconds"}
+    assert keys <= set(report)
+    assert 0.5 < report["random_split_accuracy"] <= 1 and 0.5 < report["grouped_split_accuracy"] <= 1
+    assert report["n_train"] + report["n_test"] == report["n_images"] == 300
+    assert report["feature_seconds"] >= 0 and report["fit_seconds"] >= 0
+    # The saved model is usable by detect.
+    img = tmp_path / "street.jpg"
+    shutil.copy(TEST_IMAGES / "test1.jpg", img)
+    assert main(["detect", str(img), "--model", str(model)]) == 0
+    csv_rows(tmp_path / "street_boxes.csv")
+
+
+def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
+    clip, _ = detected_clip
+    table = read_boxes_table(clip.with_name("clip8_boxes.csv"))
+    found = table.by_frame()
+    assert len(found.get(5, [])) > 0  # both cars of the clip are tracked by frame 5
+    cars = {f: [b.tolist() for b in found.get(f, [])] for f in (0, 5)}
+    cars[0].append([0, 0, 40, 40])  # a car nobody can find: one miss
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"video": clip.name, "frames": {str(f): {"cars": c} for f, c in cars.items()}}))
+    assert main(["evaluate", "--video", str(clip), "--labels", str(labels), "--json", "--no-progress"]) == 0
+    scores = last_json(capsys.readouterr().out)
+    assert {"precision", "recall", "f1", "fp_per_frame"} <= set(scores)
+    n_found = len(cars[0]) - 1 + len(cars[5])
+    # The same decoded frames give the same boxes: every detection matches, one car is missed.
+    assert (scores["tp"], scores["fp"], scores["fn"], scores["n_frames"]) == (n_found, 0, 1, 2)
+    assert scores["precision"] == 1.0 and scores["fp_per_frame"] == 0.0
+    assert scores["recall"] == pytest.approx(n_found / (n_found + 1))
+    p, r = scores["precision"], scores["recall"]
+    assert scores["f1"] == pytest.approx(2 * p * r / (p + r))
