@@ -14,9 +14,9 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from .errors import OutputError
+from .errors import InputError, OutputError
 
-__all__ = ["atomic_output", "check_output_path", "PARTIAL_SUFFIX"]
+__all__ = ["atomic_output", "check_output_path", "read_text", "PARTIAL_SUFFIX"]
 
 PARTIAL_SUFFIX = ".partial"
 
@@ -120,3 +120,30 @@ def atomic_output(
         with suppress(OSError):
             tmp.unlink()
         raise
+
+
+def read_text(path: str | os.PathLike, what: str, kind: str, *, encoding: str = "utf-8") -> str:
+    """Read a text input, turning every failure into an :class:`InputError` naming the file.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file is, for messages (``"annotation file"``).
+    kind : str
+        Its expected format, for the hint on undecodable bytes (``"JSON"``).
+    encoding : str
+        ``"utf-8-sig"`` also accepts a byte-order mark.
+    """
+    path = Path(path)
+    try:
+        with open(path, encoding=encoding, newline=None) as fh:
+            return fh.read()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not a {what}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}); is this a {kind} file?") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None

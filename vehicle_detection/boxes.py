@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._files import atomic_output
+from ._files import atomic_output, read_text
 from .errors import InputError
 from .evaluate import _as_boxes
 
@@ -309,17 +309,7 @@ def read_boxes_table(path: str | os.PathLike) -> BoxTable:
         1-based line number (the header is line 1).
     """
     path = Path(path)
-    try:
-        with open(path, encoding="utf-8-sig", newline=None) as fh:
-            lines = fh.read().split("\n")
-    except FileNotFoundError:
-        raise InputError(f"{path}: boxes file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, not a boxes CSV file") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}); is this a CSV file?") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read boxes file: {exc.strerror or exc}") from None
+    lines = read_text(path, "boxes file", "CSV", encoding="utf-8-sig").split("\n")
 
     while lines and not lines[-1].strip():
         lines.pop()

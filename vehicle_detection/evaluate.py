@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
+from ._files import read_text
 from .errors import InputError
 
 __all__ = [
@@ -279,16 +280,7 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
         e.g. ``frames["50"].cars[1]``.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: annotation file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, not an annotation file") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}); is this a JSON file?") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read annotation file: {exc.strerror or exc}") from None
+    text = read_text(path, "annotation file", "JSON")
     try:
         doc = json.loads(text, object_pairs_hook=_no_duplicate_keys, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
