@@ -308,7 +308,7 @@ def color_space_figure(patches: Mapping[str, np.ndarray], color_spaces: Sequence
                 ax.imshow(conv[:, :, c], cmap="gray", vmin=0, vmax=255)
                 ax.set_xticks([])
                 ax.set_yticks([])
-                ax.set_title(f"{name} {space[c] if space not in ('YCrCb',) else ('Y', 'Cr', 'Cb')[c]}", fontsize=7)
+                ax.set_title(f"{name} {_channel_names(space)[c]}", fontsize=7)
     fig.suptitle("Channels of a vehicle and a non-vehicle patch in six colour spaces (8-bit OpenCV conventions)", fontsize=9)
     return fig
 
