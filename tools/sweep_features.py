@@ -3,8 +3,8 @@
     python tools/sweep_features.py --data-dir ../shared/data [--subsample N] [--jobs 2] [--json]
 
 The configurations are :func:`vehicle_detection.plots.showcase_configs` (the classic RGB / HLS /
-YCrCb HOG choices, signed orientations and the embedded model's configuration), which the
-command line's ``vehicle-detection sweep`` cannot express (it has no signed or gamma options).
+YCrCb HOG choices, signed orientations and the embedded model's configuration): a curated list,
+where ``vehicle-detection sweep`` scores the product of the options it is given.
 Each is scored by :func:`vehicle_detection.classifier.sweep` with the library's default C;
 prints a Markdown table sorted by grouped-split accuracy (or JSON rows with ``--json``).
 """

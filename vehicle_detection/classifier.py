@@ -125,7 +125,7 @@ class VehicleClassifier:
         from sklearn.preprocessing import StandardScaler
         from sklearn.svm import LinearSVC
 
-        pipe = make_pipeline(StandardScaler(), LinearSVC(C=C, dual=True, max_iter=max_iter))
+        pipe = make_pipeline(StandardScaler(), LinearSVC(C=C, dual=True, max_iter=max_iter, random_state=0))
         pipe.fit(features, labels)
         scaler, svm = pipe[0], pipe[1]
         scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
@@ -375,19 +375,24 @@ def train(
 def sweep_configs(
     color_spaces=("YCrCb", "YUV", "HLS", "LUV"),
     hog_channels=((0, 1, 2),),
-    orientations=(9, 11),
+    orientations=(9, 16),
     pixels_per_cell=(8, 16),
     cells_per_block=(2,),
-    color_features=((16, 16), (0, 0)),
+    color_features=((16, 32), (0, 0)),
+    signed=(True,),
+    hog_sqrt=(True,),
 ) -> list[FeatureConfig]:
     """The product of the given choices as :class:`FeatureConfig` objects.
 
     ``color_features`` lists ``(spatial_size, hist_bins)`` pairs; ``(0, 0)`` is HOG only.
     """
     return [
-        FeatureConfig(color_space=cs, hog_channels=ch, orientations=o, pixels_per_cell=p, cells_per_block=b, spatial_size=s, hist_bins=h)
-        for cs, ch, o, p, b, (s, h) in itertools.product(
-            color_spaces, hog_channels, orientations, pixels_per_cell, cells_per_block, color_features
+        FeatureConfig(
+            color_space=cs, hog_channels=ch, orientations=o, pixels_per_cell=p, cells_per_block=b,
+            signed=sg, hog_sqrt=sq, spatial_size=s, hist_bins=h,
+        )
+        for cs, ch, o, p, b, (s, h), sg, sq in itertools.product(
+            color_spaces, hog_channels, orientations, pixels_per_cell, cells_per_block, color_features, signed, hog_sqrt
         )
     ]
 

@@ -68,6 +68,8 @@ def _add_feature_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--orientations", type=int, default=d.orientations)
     g.add_argument("--pixels-per-cell", type=int, default=d.pixels_per_cell)
     g.add_argument("--cells-per-block", type=int, default=d.cells_per_block)
+    g.add_argument("--signed", type=int, choices=(0, 1), default=int(d.signed), help="signed (0-360) orientations (default %(default)s)")
+    g.add_argument("--hog-sqrt", type=int, choices=(0, 1), default=int(d.hog_sqrt), help="gamma-compress before HOG (default %(default)s)")
     g.add_argument("--spatial-size", type=int, default=d.spatial_size, help="0 disables spatial bins")
     g.add_argument("--hist-bins", type=int, default=d.hist_bins, help="0 disables colour histograms")
 
@@ -83,6 +85,8 @@ def _feature_config(args):
             orientations=args.orientations,
             pixels_per_cell=args.pixels_per_cell,
             cells_per_block=args.cells_per_block,
+            signed=bool(args.signed),
+            hog_sqrt=bool(args.hog_sqrt),
             spatial_size=args.spatial_size,
             hist_bins=args.hist_bins,
         )
@@ -119,10 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data-dir", default=None)
     p.add_argument("--color-spaces", default="YCrCb,YUV,LUV,HLS", help="comma-separated (default %(default)s)")
     p.add_argument("--hog-channels", default="0,1,2", help="semicolon-separated channel sets, e.g. '0,1,2;0' (default %(default)s)")
-    p.add_argument("--orientations", default="9,11", help="comma-separated (default %(default)s)")
+    p.add_argument("--orientations", default="9,16", help="comma-separated (default %(default)s)")
     p.add_argument("--pixels-per-cell", default="8,16")
     p.add_argument("--cells-per-block", default="2")
-    p.add_argument("--color-features", default="16x16,0x0", help="spatial x hist pairs, 0x0 = HOG only (default %(default)s)")
+    p.add_argument("--color-features", default="16x32,0x0", help="spatial x hist pairs, 0x0 = HOG only (default %(default)s)")
+    p.add_argument("--signed", default="1", help="signed orientations: 1, 0 or 1,0 for both (default %(default)s)")
+    p.add_argument("--hog-sqrt", default="1", help="gamma-compress before HOG: 1, 0 or 1,0 (default %(default)s)")
     p.add_argument("--subsample", type=_positive_int, default=None, help="use this many images (random, stratified) for a quick look")
     p.add_argument("--jobs", type=_positive_int, default=2, help="parallel workers (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the table as JSON (one row per line)")
@@ -248,6 +254,8 @@ def _cmd_sweep(args) -> int:
             pixels_per_cell=tuple(_csv_ints(args.pixels_per_cell, "pixels-per-cell")),
             cells_per_block=tuple(_csv_ints(args.cells_per_block, "cells-per-block")),
             color_features=tuple(pairs),
+            signed=tuple(bool(v) for v in _csv_ints(args.signed, "signed")),
+            hog_sqrt=tuple(bool(v) for v in _csv_ints(args.hog_sqrt, "hog-sqrt")),
         )
     except ValueError as exc:
         raise InputError(str(exc)) from None
@@ -261,12 +269,12 @@ def _cmd_sweep(args) -> int:
         for r in rows:
             print(json.dumps(r))
         return 0
-    head = f"{'color':6} {'hog ch':7} {'orient':>6} {'ppc':>4} {'cpb':>4} {'spat':>5} {'hist':>5} {'feats':>6} {'random':>7} {'grouped':>7} {'feat s':>7}"
+    head = f"{'color':6} {'hog ch':7} {'orient':>6} {'sign':>4} {'sqrt':>4} {'ppc':>4} {'cpb':>4} {'spat':>5} {'hist':>5} {'feats':>6} {'random':>7} {'grouped':>7} {'feat s':>7}"
     print(head)
     for r in rows:
         ch = "".join(str(c) for c in r["hog_channels"])
         print(
-            f"{r['color_space']:6} {ch:7} {r['orientations']:>6} {r['pixels_per_cell']:>4} {r['cells_per_block']:>4} "
+            f"{r['color_space']:6} {ch:7} {r['orientations']:>6} {int(r['signed']):>4} {int(r['hog_sqrt']):>4} {r['pixels_per_cell']:>4} {r['cells_per_block']:>4} "
             f"{r['spatial_size']:>5} {r['hist_bins']:>5} {r['n_features']:>6} {r['random_accuracy']:>7.4f} "
             f"{r['grouped_accuracy']:>7.4f} {r['feature_seconds']:>7.2f}"
         )

@@ -30,7 +30,8 @@ from scipy.optimize import linear_sum_assignment
 from .evaluate import _as_boxes, box_iou
 from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat
 
-__all__ = ["TrackerConfig", "Track", "TrackerState", "Tracker"]
+__all__ = [
+    "window_heat","TrackerConfig", "Track", "TrackerState", "Tracker"]
 
 
 def _is_int(value: Any) -> bool:
@@ -96,6 +97,16 @@ class TrackerConfig:
     score_gain: float = 1.0
     peak_fraction: float = 0.3
 
+    @property
+    def frame_threshold(self) -> float:
+        """The threshold on a single frame's heat matching ``threshold`` on integrated heat.
+
+        A blob seen with heat ``h`` on every frame integrates to ``h / (1 - decay)``, so the
+        integrated threshold corresponds to ``threshold * (1 - decay)`` on one frame; single
+        images (no history) use this.
+        """
+        return self.threshold * (1.0 - self.decay)
+
     def __post_init__(self) -> None:
         def real(name: str, ok, rule: str) -> None:
             value = getattr(self, name)
@@ -123,6 +134,19 @@ class TrackerConfig:
             object.__setattr__(self, "aspect_range", _check_aspect_range(self.aspect_range))
         except ValueError as exc:
             raise ValueError(f"TrackerConfig.{exc}") from None
+
+
+def window_heat(scores, score_gain: float = 1.0) -> np.ndarray:
+    """Heat a window adds: ``1 + score_gain * max(score, 0)`` (float64, one per window).
+
+    Parameters
+    ----------
+    scores : array_like of float, shape (n,)
+        Window margins above the search threshold.
+    score_gain : float
+        0 makes every window count 1.
+    """
+    return 1.0 + score_gain * np.maximum(np.asarray(scores, dtype=np.float64), 0.0)
 
 
 @dataclass
@@ -352,7 +376,7 @@ class Tracker:
                 raise ValueError(f"scores must have one value per box ({len(win)}); got shape {np.shape(scores)}")
             if not np.all(np.isfinite(sc)):
                 raise ValueError("scores must be finite")
-            weights = 1.0 + cfg.score_gain * np.maximum(sc, 0.0)
+            weights = window_heat(sc, cfg.score_gain)
 
         # 1-2. Heat of this frame, integrated.
         map_shape = (hw[0] // cfg.cell, hw[1] // cfg.cell)
