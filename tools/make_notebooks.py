@@ -427,7 +427,7 @@ NB_VIDEO = [
     md("""
 # 5. Video: heat over frames, tracks, processed videos, scores
 
-`process_video` decodes a video, runs `Detector.step` on every frame (search, then
+`process_video` decodes a video, runs the detector on every frame (search, then
 `tracker.Tracker.update`: heat integrated over frames, hot blobs matched to tracks, a track
 reported after `min_hits` frames) and writes the annotated MP4. Set `VD_MAX_FRAMES` to process
 only the first frames of the project clip (the notebook test does).
@@ -480,7 +480,8 @@ runs = {
 videos = {}
 for name, (src, out, limit) in runs.items():
     t = time.perf_counter()
-    table = process_video(src, out, detector=det, overwrite=True, progress=False, max_frames=limit)
+    # veryfast keeps the committed videos small; the command line defaults to ultrafast (speed)
+    table = process_video(src, out, detector=det, overwrite=True, progress=False, max_frames=limit, preset="veryfast")
     seconds = time.perf_counter() - t
     n = min(limit or np.inf, probe_video(src).n_frames)
     videos[name] = (table, n)

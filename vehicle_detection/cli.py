@@ -95,6 +95,8 @@ def _feature_config(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .video import X264_PRESETS
+
     parser = _Parser(
         prog="vehicle-detection",
         description="Find and track vehicles in dashcam images and video (HOG + linear SVM).",
@@ -140,6 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--boxes", default=None, help="CSV of boxes (default: next to the input, *_boxes.csv)")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs (never the input)")
+    p.add_argument("--preset", default="ultrafast", choices=X264_PRESETS, metavar="PRESET",
+                   help="x264 speed preset for videos: %(choices)s (default %(default)s: fastest, larger files)")
+    p.add_argument("--crf", type=int, default=23, choices=range(0, 52), metavar="CRF",
+                   help="x264 quality for videos, 0-51, lower is better (default %(default)s)")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
 
@@ -335,7 +341,10 @@ def _cmd_detect(args) -> int:
     detector = _load_detector(args.model)
     t = time.perf_counter()
     if kind == "video":
-        table = process_video(inp, out, detector=detector, boxes_csv=boxes, overwrite=args.overwrite, progress=not args.no_progress)
+        table = process_video(
+            inp, out, detector=detector, boxes_csv=boxes, overwrite=args.overwrite, progress=not args.no_progress,
+            preset=args.preset, crf=args.crf,
+        )
         n = len(set(table.frame.tolist()))
         print(f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)")
         return 0

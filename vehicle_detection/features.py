@@ -392,37 +392,40 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
     |gy| at 90 deg (left/right), or nothing (corner) instead of its full gradient.
     """
     h, w = image.shape[0], image.shape[1]
+    n_ch = channels.shape[0]
     n_cr, n_cc = variants.shape[3], variants.shape[4]
-    cells = np.empty((n_cc, nb))
+    cells = np.empty((n_ch, n_cc, nb))
     # Change of a cell when its top/bottom/left/right edge is a window border (0-3), and the
     # extra change of its top-left/top-right/bottom-left/bottom-right pixel at a corner (4-7).
-    d = np.empty((8, n_cc, nb))
-    for k in range(channels.shape[0]):
-        ch = channels[k]
-        v = variants[k]
-        for cy in range(n_cr):
-            cells[:] = 0.0
-            d[:] = 0.0
-            for ry in range(ppc):
-                y = cy * ppc + ry
-                top = ry == 0
-                bottom = ry == ppc - 1
-                for cx in range(n_cc):
-                    for rx in range(ppc):
-                        x = cx * ppc + rx
+    d = np.empty((n_ch, 8, n_cc, nb))
+    for cy in range(n_cr):
+        cells[:] = 0.0
+        d[:] = 0.0
+        for ry in range(ppc):
+            y = cy * ppc + ry
+            top = ry == 0
+            bottom = ry == ppc - 1
+            inner_y = 0 < y < h - 1
+            for cx in range(n_cc):
+                for rx in range(ppc):
+                    x = cx * ppc + rx
+                    inner_x = 0 < x < w - 1
+                    left = rx == 0
+                    right = rx == ppc - 1
+                    edge = top or bottom or left or right
+                    for k in range(n_ch):
+                        ch = channels[k]
                         gx = 0
                         gy = 0
-                        if 0 < x < w - 1:
+                        if inner_x:
                             gx = np.int32(image[y, x + 1, ch]) - np.int32(image[y, x - 1, ch])
-                        if 0 < y < h - 1:
+                        if inner_y:
                             gy = np.int32(image[y + 1, x, ch]) - np.int32(image[y - 1, x, ch])
                         m = math.sqrt(gx * gx + gy * gy)
                         b = lut[gy + 255, gx + 255]
                         if b < nb:
-                            cells[cx, b] += m
-                        left = rx == 0
-                        right = rx == ppc - 1
-                        if not (top or bottom or left or right):
+                            cells[k, cx, b] += m
+                        if not edge:
                             continue
                         bh = lut[255, gx + 255]
                         mh = abs(gx)
@@ -431,39 +434,41 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
                         if top or bottom:
                             e = 0 if top else 1
                             if bh < nb:
-                                d[e, cx, bh] += mh
+                                d[k, e, cx, bh] += mh
                             if b < nb:
-                                d[e, cx, b] -= m
+                                d[k, e, cx, b] -= m
                         if left or right:
                             e = 2 if left else 3
                             if bv < nb:
-                                d[e, cx, bv] += mv
+                                d[k, e, cx, bv] += mv
                             if b < nb:
-                                d[e, cx, b] -= m
+                                d[k, e, cx, b] -= m
                         if (top or bottom) and (left or right):
                             # Both gradients zeroed: the vote is 0. The two edge changes sum to
                             # (mh - m) + (mv - m); this brings the total to -m.
                             e = (4 if left else 5) if top else (6 if left else 7)
                             if b < nb:
-                                d[e, cx, b] += m
+                                d[k, e, cx, b] += m
                             if bh < nb:
-                                d[e, cx, bh] -= mh
+                                d[k, e, cx, bh] -= mh
                             if bv < nb:
-                                d[e, cx, bv] -= mv
+                                d[k, e, cx, bv] -= mv
+        for k in range(n_ch):
+            v = variants[k]
             for cx in range(n_cc):
                 for o in range(nb):
-                    c = cells[cx, o]
-                    t = c + d[0, cx, o]
-                    bo = c + d[1, cx, o]
+                    c = cells[k, cx, o]
+                    t = c + d[k, 0, cx, o]
+                    bo = c + d[k, 1, cx, o]
                     v[0, 0, cy, cx, o] = c
                     v[1, 0, cy, cx, o] = t
                     v[2, 0, cy, cx, o] = bo
-                    v[0, 1, cy, cx, o] = c + d[2, cx, o]
-                    v[0, 2, cy, cx, o] = c + d[3, cx, o]
-                    v[1, 1, cy, cx, o] = t + d[2, cx, o] + d[4, cx, o]
-                    v[1, 2, cy, cx, o] = t + d[3, cx, o] + d[5, cx, o]
-                    v[2, 1, cy, cx, o] = bo + d[2, cx, o] + d[6, cx, o]
-                    v[2, 2, cy, cx, o] = bo + d[3, cx, o] + d[7, cx, o]
+                    v[0, 1, cy, cx, o] = c + d[k, 2, cx, o]
+                    v[0, 2, cy, cx, o] = c + d[k, 3, cx, o]
+                    v[1, 1, cy, cx, o] = t + d[k, 2, cx, o] + d[k, 4, cx, o]
+                    v[1, 2, cy, cx, o] = t + d[k, 3, cx, o] + d[k, 5, cx, o]
+                    v[2, 1, cy, cx, o] = bo + d[k, 2, cx, o] + d[k, 6, cx, o]
+                    v[2, 2, cy, cx, o] = bo + d[k, 3, cx, o] + d[k, 7, cx, o]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -527,19 +532,52 @@ def _block_map(variants, cpb, vclass, hclass, out):
 def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
     """Normalised blocks of several border classes, only at the positions marked as needed.
 
-    classes (k, 2) int: (vertical, horizontal) class of each map; need_rows (k, n_br) and
-    need_cols (k, n_bc) bool; out (k, n_br, n_bc, bs), left untouched where not needed.
+    classes (k, 2) int: (vertical, horizontal) class of each map (see :func:`_gather_block`);
+    need_rows (k, n_br) and need_cols (k, n_bc) bool; out (k, n_br, n_bc, bs), float32 or
+    float64, left untouched where not needed. Same arithmetic as :func:`_gather_block`
+    followed by :func:`_l2hys`, with each cell's sum of squares computed once.
     """
-    n_br = out.shape[1]
-    block = np.empty(out.shape[3], np.float64)
-    for r in range(n_br):
-        for k in range(classes.shape[0]):
+    n_cr, n_cc, nb = variants.shape[2], variants.shape[3], variants.shape[4]
+    ss = np.empty((3, 3, n_cr, n_cc))
+    for a in range(3):
+        for b in range(3):
+            for r in range(n_cr):
+                for c in range(n_cc):
+                    t = 0.0
+                    for o in range(nb):
+                        t += variants[a, b, r, c, o] * variants[a, b, r, c, o]
+                    ss[a, b, r, c] = t
+    for k in range(classes.shape[0]):
+        vclass, hclass = classes[k, 0], classes[k, 1]
+        for r in range(out.shape[1]):
             if not need_rows[k, r]:
                 continue
             for c in range(out.shape[2]):
-                if need_cols[k, c]:
-                    _gather_block(variants, r, c, cpb, classes[k, 0], classes[k, 1], block)
-                    out[k, r, c, :] = block
+                if not need_cols[k, c]:
+                    continue
+                blk = out[k, r, c]
+                s1 = 0.0
+                for a in range(cpb):
+                    vr = 1 if (vclass == 1 and a == 0) else (2 if (vclass == 2 and a == cpb - 1) else 0)
+                    for b in range(cpb):
+                        hc = 1 if (hclass == 1 and b == 0) else (2 if (hclass == 2 and b == cpb - 1) else 0)
+                        s1 += ss[vr, hc, r + a, c + b]
+                inv1 = 1.0 / math.sqrt(s1 + 1e-10)
+                s2 = 0.0
+                i = 0
+                for a in range(cpb):
+                    vr = 1 if (vclass == 1 and a == 0) else (2 if (vclass == 2 and a == cpb - 1) else 0)
+                    for b in range(cpb):
+                        hc = 1 if (hclass == 1 and b == 0) else (2 if (hclass == 2 and b == cpb - 1) else 0)
+                        src = variants[vr, hc, r + a, c + b]
+                        for o in range(nb):
+                            v = min(src[o] * inv1, 0.2)
+                            blk[i] = v
+                            s2 += v * v
+                            i += 1
+                inv2 = 1.0 / math.sqrt(s2 + 1e-10)
+                for j in range(i):
+                    blk[j] = blk[j] * inv2
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)

@@ -973,7 +973,7 @@ def process_video(
     progress: bool = True,
     max_frames: int | None = None,
     crf: int = 23,
-    preset: str = "veryfast",
+    preset: str = "ultrafast",
 ):
     """Detect and track vehicles through a video; write the annotated video and the boxes.
 
@@ -998,6 +998,9 @@ def process_video(
         Show a progress bar on stderr.
     max_frames : int, optional
         Stop after this many frames.
+    crf, preset : int, str
+        x264 quality (lower is better) and speed preset. ``ultrafast`` leaves the most CPU to
+        the detector (files about twice the size of ``veryfast`` at the same ``crf``).
 
     Returns
     -------
