@@ -656,7 +656,7 @@ def detection_stages_figure(
         _boxes(axes[r, 3], det.boxes, lw=2.0, labels=[f"{s:.1f}" for s in det.scores])
         if r == 0:
             axes[r, 0].set_title("hot windows (colour = window size)", fontsize=9)
-            axes[r, 1].set_title("heat: sum of window margins", fontsize=9)
+            axes[r, 1].set_title("heat: 1 + margin per window", fontsize=9)
             axes[r, 2].set_title(f"labelled blobs of heat > {thr:g}", fontsize=9)
             axes[r, 3].set_title("final boxes, peak heat", fontsize=9)
         _tag(axes[r, 0], f"{len(wins)} windows")
@@ -744,7 +744,7 @@ def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray
         if r == 0:
             axes[r, 0].set_title("hot windows of the frame", fontsize=9)
             axes[r, 1].set_title(f"integrated heat (decay {cfg.decay:g}), contour at {cfg.threshold:g}", fontsize=9)
-            axes[r, 2].set_title(f"confirmed tracks (>= {cfg.min_hits} hits)", fontsize=9)
+            axes[r, 2].set_title(f"live tracks (>= {cfg.min_hits} hits; the video back-fills)", fontsize=9)
         _view(axes[r], w, h, rows)
     return fig
 
