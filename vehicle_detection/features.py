@@ -489,6 +489,21 @@ def _l2hys(block):
         block[j] = block[j] * inv
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_variant(block_class, a, cpb):
+    """Which variant cell ``a`` (0..cpb-1 along one axis) of a block of this class uses.
+
+    A block on the window's first (class 1) or last (class 2) row or column sees its first or
+    last cell with the window border along that edge (variant 1 or 2); every other cell, and
+    every cell of an interior block (class 0), is the plain cell (variant 0).
+    """
+    if block_class == 1 and a == 0:
+        return 1
+    if block_class == 2 and a == cpb - 1:
+        return 2
+    return 0
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _gather_block(variants, r, c, cpb, vclass, hclass, block):
     """Copy the cells of the block at (r, c) into ``block``, then L2-Hys normalise it.
@@ -501,31 +516,13 @@ def _gather_block(variants, r, c, cpb, vclass, hclass, block):
     nb = variants.shape[4]
     i = 0
     for a in range(cpb):
-        vr = 0
-        if vclass == 1 and a == 0:
-            vr = 1
-        elif vclass == 2 and a == cpb - 1:
-            vr = 2
+        vr = _edge_variant(vclass, a, cpb)
         for b in range(cpb):
-            hc = 0
-            if hclass == 1 and b == 0:
-                hc = 1
-            elif hclass == 2 and b == cpb - 1:
-                hc = 2
+            hc = _edge_variant(hclass, b, cpb)
             for k in range(nb):
                 block[i] = variants[vr, hc, r + a, c + b, k]
                 i += 1
     _l2hys(block)
-
-
-@numba.njit(cache=True, nogil=True, parallel=True)
-def _block_map(variants, cpb, vclass, hclass, out):
-    """Normalised blocks of one border class at every block position: out (n_br, n_bc, bs)."""
-    for r in numba.prange(out.shape[0]):
-        block = np.empty(out.shape[2], np.float64)
-        for c in range(out.shape[1]):
-            _gather_block(variants, r, c, cpb, vclass, hclass, block)
-            out[r, c, :] = block
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -558,18 +555,16 @@ def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
                 blk = out[k, r, c]
                 s1 = 0.0
                 for a in range(cpb):
-                    vr = 1 if (vclass == 1 and a == 0) else (2 if (vclass == 2 and a == cpb - 1) else 0)
+                    vr = _edge_variant(vclass, a, cpb)
                     for b in range(cpb):
-                        hc = 1 if (hclass == 1 and b == 0) else (2 if (hclass == 2 and b == cpb - 1) else 0)
-                        s1 += ss[vr, hc, r + a, c + b]
+                        s1 += ss[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
                 inv1 = 1.0 / math.sqrt(s1 + 1e-10)
                 s2 = 0.0
                 i = 0
                 for a in range(cpb):
-                    vr = 1 if (vclass == 1 and a == 0) else (2 if (vclass == 2 and a == cpb - 1) else 0)
+                    vr = _edge_variant(vclass, a, cpb)
                     for b in range(cpb):
-                        hc = 1 if (hclass == 1 and b == 0) else (2 if (hclass == 2 and b == cpb - 1) else 0)
-                        src = variants[vr, hc, r + a, c + b]
+                        src = variants[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
                         for o in range(nb):
                             v = min(src[o] * inv1, 0.2)
                             blk[i] = v
