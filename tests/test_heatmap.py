@@ -377,3 +377,29 @@ def test_heat_to_boxes_boxes_are_inside_and_plausible(case):
     for (bx1, by1, bx2, by2), peak in zip(boxes // cell, peaks):
         assert heat[by1:by2, bx1:bx2].max() >= peak
     assert len(boxes) <= label_heat(heat, threshold)[1]
+
+
+def _two_core_heat(gap_cols: int, core_w: int) -> np.ndarray:
+    """One blob (a weak bridge of heat) holding two hot cores ``core_w`` cells wide."""
+    heat = np.zeros((30, 60), np.float32)
+    heat[5:15, 5 : 5 + 2 * core_w + gap_cols] = 3.0  # the bridge: above threshold, below the cores' fraction
+    heat[5:15, 5 : 5 + core_w] = 20.0
+    heat[5:15, 5 + core_w + gap_cols : 5 + 2 * core_w + gap_cols] = 12.0
+    return heat
+
+
+def test_two_large_cores_in_one_blob_give_two_boxes():
+    heat = _two_core_heat(gap_cols=3, core_w=10)  # cores 80 px wide at cell 8
+    boxes, peaks = heat_to_boxes(heat, 1.0, cell=8, peak_fraction=0.3, split_size=(64, 64), min_size=(32, 32))
+    assert boxes.tolist() == [[40, 40, 120, 120], [144, 40, 224, 120]]
+    assert peaks.tolist() == [20.0, 12.0]
+    # Without the core cut, the same heat is one blob and one box.
+    whole, _ = heat_to_boxes(heat, 1.0, cell=8, min_size=(32, 32))
+    assert whole.tolist() == [[40, 40, 224, 120]]
+
+
+def test_small_cores_of_one_car_stay_one_box():
+    heat = _two_core_heat(gap_cols=3, core_w=5)  # cores 40 px wide: front and back of one car
+    boxes, peaks = heat_to_boxes(heat, 1.0, cell=8, peak_fraction=0.3, split_size=(64, 64), min_size=(32, 32))
+    assert boxes.tolist() == [[40, 40, 144, 120]]
+    assert peaks.tolist() == [20.0]

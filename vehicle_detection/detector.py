@@ -124,7 +124,8 @@ class Detector:
         heat = self.heat(image.shape, wins)
         cfg = self.tracker
         boxes, peaks = heat_to_boxes(
-            heat, self.image_threshold, cell=cfg.cell, min_size=cfg.min_size, aspect_range=cfg.aspect_range, peak_fraction=cfg.peak_fraction
+            heat, self.image_threshold, cell=cfg.cell, min_size=cfg.min_size, aspect_range=cfg.aspect_range,
+            peak_fraction=cfg.peak_fraction, split_size=cfg.split_size,
         )
         return ImageDetection(boxes, np.asarray(peaks, np.float64), wins, heat)
 

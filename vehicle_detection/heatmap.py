@@ -316,19 +316,51 @@ def _peaks(heat: np.ndarray, labels: np.ndarray, blobs: list[tuple[int, tuple[sl
 
 
 def _core_boxes(
-    heat: np.ndarray, labels: np.ndarray, blobs: list[tuple[int, tuple[slice, slice]]], cell: int, fraction: float
-) -> np.ndarray:
-    """Box of the cells of each blob holding at least ``fraction`` of its peak heat, int64 (k, 4).
+    heat: np.ndarray,
+    labels: np.ndarray,
+    blobs: list[tuple[int, tuple[slice, slice]]],
+    cell: int,
+    fraction: float,
+    min_size: tuple[float, float] = (0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cut each blob to its cores: connected cells holding at least ``fraction`` of its peak.
 
     Windows overlapping a car only partly (below it, on its shadow) add less heat than the
-    windows centred on it; cutting each blob at a fraction of its own peak keeps its core.
+    windows centred on it, so cutting a blob at a fraction of its own peak keeps the car. Two
+    cars side by side make one blob with two hot cores: when at least two cores are each as
+    large as ``min_size`` (frame pixels; the smallest search window, as no car's core can be
+    smaller), each becomes its own box; otherwise the blob keeps one box around all its cores
+    (one car can show two small cores, its front and its back).
+
+    Returns
+    -------
+    boxes : ndarray of int64, shape (k, 4)
+        Frame pixels; ``k >= len(blobs)``.
+    peaks : ndarray of float64, shape (k,)
+        Peak heat of each core.
+    source : ndarray of int64, shape (k,)
+        Index into ``blobs`` of the blob each box came from.
     """
-    out = np.zeros((len(blobs), 4), dtype=np.int64)
+    boxes, peaks, source = [], [], []
     for k, (i, s) in enumerate(blobs):
         h = np.where(labels[s] == i, heat[s], 0.0)
-        rows, cols = np.nonzero(h >= fraction * h.max())
-        out[k] = (s[1].start + cols.min(), s[0].start + rows.min(), s[1].start + cols.max() + 1, s[0].start + rows.max() + 1)
-    return out * cell
+        top = h.max()
+        core = h >= fraction * top
+        sub, n = ndimage.label(core, structure=np.ones((3, 3), bool))
+        kept = []
+        for j, sl in enumerate(ndimage.find_objects(sub), start=1):
+            w = (sl[1].stop - sl[1].start) * cell
+            ht = (sl[0].stop - sl[0].start) * cell
+            if w >= min_size[0] and ht >= min_size[1]:
+                kept.append((sl, float(h[sl][sub[sl] == j].max())))
+        if len(kept) < 2:  # one car: one box around all its cores
+            rows, cols = np.nonzero(core)
+            kept = [((slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)), float(top))]
+        for sl, pk in kept:
+            boxes.append((s[1].start + sl[1].start, s[0].start + sl[0].start, s[1].start + sl[1].stop, s[0].start + sl[0].stop))
+            peaks.append(pk)
+            source.append(k)
+    return (np.array(boxes, dtype=np.int64).reshape(-1, 4) * cell, np.array(peaks, dtype=np.float64), np.array(source, dtype=np.int64))
 
 
 def blob_boxes(
@@ -406,6 +438,7 @@ def heat_to_boxes(
     aspect_range: Sequence[float] = _DEFAULT_ASPECT_RANGE,
     connectivity: int = 8,
     peak_fraction: float = 0.0,
+    split_size: Sequence[float] = (64, 64),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Boxes around the blobs of a heat map above a threshold: label, then :func:`blob_boxes`.
 
@@ -421,7 +454,11 @@ def heat_to_boxes(
         As for :func:`label_heat`.
     peak_fraction : float, default 0.0
         If positive, each kept blob's box is shrunk to its cells holding at least this fraction
-        of the blob's peak heat (the size and shape filters apply to the whole blob).
+        of the blob's peak heat (the size and shape filters apply to the whole blob); a blob
+        with two or more such cores of at least ``split_size`` (width, height in frame pixels)
+        gives one box per core (two cars side by side).
+    split_size : (float, float), default (64, 64)
+        Smallest core that counts as a car of its own (the smallest search window).
 
     Returns
     -------
@@ -444,5 +481,6 @@ def heat_to_boxes(
     labels, n = label_heat(arr, threshold, connectivity=connectivity)
     boxes, blobs = _blob_boxes(labels, n, cell, size, aspect)
     if peak_fraction > 0 and blobs:
-        boxes = _core_boxes(arr, labels, blobs, cell, peak_fraction)
+        boxes, peaks, _ = _core_boxes(arr, labels, blobs, cell, peak_fraction, split_size)
+        return boxes, peaks
     return boxes, _peaks(arr, labels, blobs)

@@ -75,6 +75,10 @@ class TrackerConfig:
     peak_fraction : float, default 0.3
         If positive, a blob's box is cut to its cells holding at least this fraction of the
         blob's peak integrated heat (see :func:`~.heatmap.heat_to_boxes`), in ``[0, 1)``.
+    split_size : (float, float), default (64, 64)
+        A blob with two or more cores (cells above ``peak_fraction`` of its peak) at least this
+        large (width, height in frame pixels: the smallest search window) is split, one box per
+        core: two cars side by side.
     score_gain : float, default 1.0
         Heat of a window is ``1 + score_gain * max(score, 0)``, finite and >= 0; 0 makes every
         window count 1 whatever its margin.
@@ -96,6 +100,7 @@ class TrackerConfig:
     aspect_range: tuple[float, float] = (0.3, 4.0)
     score_gain: float = 1.0
     peak_fraction: float = 0.3
+    split_size: tuple[float, float] = (64, 64)
 
     @property
     def frame_threshold(self) -> float:
@@ -132,6 +137,7 @@ class TrackerConfig:
         try:
             object.__setattr__(self, "min_size", _check_min_size(self.min_size))
             object.__setattr__(self, "aspect_range", _check_aspect_range(self.aspect_range))
+            object.__setattr__(self, "split_size", _check_min_size(self.split_size))
         except ValueError as exc:
             raise ValueError(f"TrackerConfig.{exc}") from None
 
@@ -396,7 +402,7 @@ class Tracker:
             blobs = [b for b, f in zip(blobs, fresh.tolist()) if f]
         peaks = _peaks(integrated, labels, blobs)
         if cfg.peak_fraction > 0 and blobs:
-            cand = _core_boxes(integrated, labels, blobs, cfg.cell, cfg.peak_fraction)
+            cand, peaks, _ = _core_boxes(integrated, labels, blobs, cfg.cell, cfg.peak_fraction, cfg.split_size)
 
         # 4. Association and track life cycle.
         tracks = st.tracks
