@@ -250,21 +250,15 @@ def _download(
 
     announced = _fetch(url, part, size=size, progress=progress, chunk_size=chunk_size, timeout=timeout)
 
-    expected_size = size if size is not None else announced
-    got_size = _file_size(part)
-    if expected_size is not None and got_size != expected_size:
+    bad = _mismatch(part, md5=md5, size=size if size is not None else announced)
+    if bad is not None:
         _remove(part)
-        raise DownloadError(
-            f"{url}: downloaded file has the wrong size: expected {expected_size:,} bytes, "
-            f"got {got_size:,}; the file was deleted"
-        )
-    if md5 is not None:
-        got_md5 = _md5sum(part)
-        if got_md5 != md5:
-            _remove(part)
+        what, expected, got = bad
+        if what == "size":
             raise DownloadError(
-                f"{url}: md5 mismatch: expected {md5}, got {got_md5}; the downloaded file was deleted"
+                f"{url}: downloaded file has the wrong size: expected {expected:,} bytes, got {got:,}; the file was deleted"
             )
+        raise DownloadError(f"{url}: md5 mismatch: expected {expected}, got {got}; the downloaded file was deleted")
     if check is not None:
         try:
             check(part)
@@ -442,18 +436,12 @@ def _copy_body(
 
 def _check_existing(dest: Path, *, md5: str | None, size: int | None) -> None:
     """Raise :class:`DownloadError` if the existing ``dest`` does not match ``md5`` / ``size``."""
-    hint = "delete it to download it again"
-    if size is not None:
-        got_size = _file_size(dest)
-        if got_size != size:
-            raise DownloadError(
-                f"{dest}: existing file has the wrong size: expected {size:,} bytes, "
-                f"got {got_size:,}; {hint}"
-            )
-    if md5 is not None:
-        got_md5 = _md5sum(dest)
-        if got_md5 != md5:
-            raise DownloadError(f"{dest}: existing file has the wrong md5: expected {md5}, got {got_md5}; {hint}")
+    bad = _mismatch(dest, md5=md5, size=size)
+    if bad is not None:
+        what, expected, got = bad
+        if what == "size":
+            expected, got = f"{expected:,} bytes", f"{got:,}"
+        raise DownloadError(f"{dest}: existing file has the wrong {what}: expected {expected}, got {got}; delete it to download it again")
 
 
 # --------------------------------------------------------------------------------------------
@@ -674,6 +662,19 @@ def _normalise_md5(md5: str | None) -> str | None:
     if not re.fullmatch(r"[0-9a-f]{32}", value):
         raise InputError(f"md5 must be 32 hexadecimal digits, got {md5!r}")
     return value
+
+
+def _mismatch(path: Path, *, md5: str | None, size: int | None):
+    """``(what, expected, got)`` for the first check ``path`` fails (size, then md5), else None."""
+    if size is not None:
+        got_size = _file_size(path)
+        if got_size != size:
+            return "size", size, got_size
+    if md5 is not None:
+        got_md5 = _md5sum(path)
+        if got_md5 != md5:
+            return "md5", md5, got_md5
+    return None
 
 
 def _md5sum(path: Path) -> str:
