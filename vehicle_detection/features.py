@@ -42,6 +42,7 @@ import cv2
 import numba
 import numpy as np
 
+from ._jit import njit
 from .errors import InputError
 from .images import as_rgb_uint8
 
@@ -245,7 +246,7 @@ def convert_color(image: np.ndarray, color_space: str) -> np.ndarray:
     return cv2.cvtColor(flat, _CV2_CODES[color_space]).reshape(image.shape)
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@njit(nogil=True, parallel=True)
 def _bin_spatial_batch(images, size, out):
     n, h, w, c = images.shape
     fy = h // size
@@ -288,7 +289,7 @@ def bin_spatial(image: np.ndarray, size: int) -> np.ndarray:
     return out[0] if single else out
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@njit(nogil=True, parallel=True)
 def _histogram_batch(images, bins, out):
     n, h, w, c = images.shape
     for i in numba.prange(n):
@@ -354,7 +355,7 @@ def _orientation_lut(orientations: int, signed: bool = False) -> np.ndarray:
     return lut
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(nogil=True, inline="always")
 def _gradient(chan, y, x, h, w):
     """Central differences, zero on the image border (scikit-image's convention)."""
     gx = 0
@@ -366,7 +367,7 @@ def _gradient(chan, y, x, h, w):
     return gx, gy
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def _cell_votes(chan, lut, ppc, n_cr, n_cc, nb, cells):
     """HOG cell histograms of one channel: cells (n_cr, n_cc, nb) float64, zeroed."""
     h, w = chan.shape
@@ -380,7 +381,7 @@ def _cell_votes(chan, lut, ppc, n_cr, n_cc, nb, cells):
                         cells[cy, cx, b] += math.sqrt(gx * gx + gy * gy)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def _region_variants(image, channels, lut, ppc, nb, variants):
     """Cell histograms of chosen channels of a search region, as seen from any window.
 
@@ -471,7 +472,7 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
                     v[2, 2, cy, cx, o] = bo + d[k, 3, cx, o] + d[k, 7, cx, o]
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@njit(nogil=True, fastmath=True)
 def _l2hys(block):
     """L2-Hys normalisation in place (scikit-image's: eps 1e-5, clip at 0.2)."""
     n = block.shape[0]
@@ -489,7 +490,7 @@ def _l2hys(block):
         block[j] = block[j] * inv
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(nogil=True, inline="always")
 def _edge_variant(block_class, a, cpb):
     """Which variant cell ``a`` (0..cpb-1 along one axis) of a block of this class uses.
 
@@ -504,7 +505,7 @@ def _edge_variant(block_class, a, cpb):
     return 0
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@njit(nogil=True, fastmath=True)
 def _gather_block(variants, r, c, cpb, vclass, hclass, block):
     """Copy the cells of the block at (r, c) into ``block``, then L2-Hys normalise it.
 
@@ -525,7 +526,7 @@ def _gather_block(variants, r, c, cpb, vclass, hclass, block):
     _l2hys(block)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@njit(nogil=True, fastmath=True)
 def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
     """Normalised blocks of several border classes, only at the positions marked as needed.
 
@@ -575,7 +576,7 @@ def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
                     blk[j] = blk[j] * inv2
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@njit(nogil=True, parallel=True)
 def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
     """HOG of each chosen channel of each patch. images: (N, H, W, C) uint8; out: (N, F) float32."""
     n, h, w, _ = images.shape

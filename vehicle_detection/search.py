@@ -28,6 +28,7 @@ import cv2
 import numba
 import numpy as np
 
+from ._jit import njit
 from .classifier import VehicleClassifier
 from .features import FeatureConfig, _block_maps, _gather_block, convert_color, extract_features, hog_input, region_hog
 from .images import as_rgb_uint8
@@ -331,7 +332,7 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan =
 _MAP_CLASSES = np.array([(0, 0), (1, 0), (2, 0), (0, 1), (0, 2)], dtype=np.int64)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@njit(nogil=True, fastmath=True)
 def _score_hog(variants, maps, weights, weights32, cpb, rows, cols, out):
     """HOG part of every window's margin.
 
@@ -366,7 +367,7 @@ def _score_hog(variants, maps, weights, weights32, cpb, rows, cols, out):
             out[wr, wc] = s
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def _colour_sums(conv, f, ppc, hist_lut, bin_sums, cell_scores):
     """One pass over the region for the colour features.
 
@@ -393,7 +394,7 @@ def _colour_sums(conv, f, ppc, hist_lut, bin_sums, cell_scores):
             cell_scores[cy, cx] = s
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@njit(nogil=True, fastmath=True)
 def _score_colour(bin_sums, spatial_w, f, cell_scores, cpw, ppc, rows, cols, with_spatial, with_hist, out):
     """Add the spatial-bin and histogram parts of every window's margin to ``out``."""
     size = spatial_w.shape[0]

@@ -1,0 +1,63 @@
+"""Where compiled kernels are cached: never inside the package (read-only installs, leftovers)."""
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import vehicle_detection
+
+PACKAGE = Path(vehicle_detection.__file__).parent
+SCRIPT = (
+    "import numpy as np\n"
+    "from vehicle_detection import _jit\n"
+    "from vehicle_detection.features import bin_spatial\n"
+    "out = bin_spatial(np.full((64, 64, 3), 7, np.uint8), 16)\n"
+    "assert out.shape == (768,) and float(out[0]) == 7.0, out[:3]\n"
+    "print(_jit.CACHE_DIR)\n"
+)
+
+
+def _run(tmp_path, **env_overrides):
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(env_overrides)
+    proc = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout.strip().splitlines()[-1]
+
+
+def _new_index_files(folder: Path, since: float) -> list[Path]:
+    return [p for p in folder.rglob("*.nbi") if p.stat().st_mtime >= since]
+
+
+def test_cache_goes_to_the_user_cache_folder(tmp_path):
+    start = time.time() - 1
+    cache_home = tmp_path / "cache"
+    where = _run(tmp_path, XDG_CACHE_HOME=str(cache_home))
+    assert Path(where) == cache_home / "vehicle-detection" / "numba"
+    assert _new_index_files(cache_home, start), "no kernel was cached in the user cache folder"
+    assert not _new_index_files(PACKAGE, start), "a kernel cache was written inside the package"
+
+
+def test_user_setting_is_respected(tmp_path):
+    where = _run(tmp_path, NUMBA_CACHE_DIR=str(tmp_path / "mine"))
+    assert Path(where) == tmp_path / "mine"
+    assert list((tmp_path / "mine").rglob("*.nbi"))
+
+
+def test_unwritable_cache_falls_back_to_the_temporary_folder(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    (tmp_path / "tmp").mkdir()
+    # The user cache folder cannot be created (its parent is a file, which stops root too).
+    where = _run(tmp_path, XDG_CACHE_HOME=str(blocker / "cache"), TMPDIR=str(tmp_path / "tmp"))
+    assert Path(where).parent == tmp_path / "tmp"
+
+
+def test_nothing_writable_compiles_without_a_cache(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    # A user-set folder that cannot be created, and nothing else tried: the kernels still
+    # compile and compute the same numbers (checked by the script), uncached.
+    assert _run(tmp_path, NUMBA_CACHE_DIR=str(blocker / "numba")) == "None"
