@@ -1,3 +1,90 @@
-"""vehicle-detection: find and track vehicles in dashcam video with HOG features and a linear SVM."""
+"""vehicle-detection: find and track vehicles in dashcam video with HOG features and a linear SVM.
 
-__version__ = "0.1.0"
+The public API is loaded lazily: ``import vehicle_detection as vd`` is fast, and each name
+imports its module on first use.
+
+>>> import vehicle_detection as vd
+>>> detector = vd.Detector()                                    # the embedded model
+>>> found = detector.detect_image(vd.read_image("test_images/test1.jpg"))
+>>> type(found).__name__, found.xyxy.shape[1]
+('Detections', 4)
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+__version__ = "0.2.0"
+
+# Public name -> module that defines it.
+_API = {
+    # results and geometry
+    "Detections": "detections",
+    "box_iou": "geometry",
+    "match_boxes": "geometry",
+    # the pipeline
+    "Detector": "detector",
+    "DetectorConfig": "config",
+    "FeatureConfig": "features",
+    "extract_features": "features",
+    "SearchPlan": "search",
+    "SearchScale": "search",
+    "search": "search",
+    "Tracker": "tracker",
+    "TrackerConfig": "tracker",
+    "process_video": "video",
+    # models and training
+    "VehicleClassifier": "classifier",
+    "load_model": "classifier",
+    "load_default_model": "classifier",
+    "train": "classifier",
+    "load_dataset": "data",
+    # images, video, tables, drawing
+    "read_image": "images",
+    "write_image": "images",
+    "list_images": "images",
+    "read_frames": "video",
+    "probe_video": "video",
+    "VideoWriter": "video",
+    "read_boxes_csv": "tables",
+    "write_boxes_csv": "tables",
+    "draw_boxes": "drawing",
+    "draw_detections": "drawing",
+    # evaluation
+    "load_annotations": "evaluate",
+    "evaluate_detections": "evaluate",
+    "match_frame": "evaluate",
+}
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str):
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'vehicle_detection' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))
+
+
+if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
+    from .classifier import VehicleClassifier, load_default_model, load_model, train
+    from .config import DetectorConfig
+    from .data import load_dataset
+    from .detections import Detections
+    from .detector import Detector
+    from .drawing import draw_boxes, draw_detections
+    from .evaluate import evaluate_detections, load_annotations, match_frame
+    from .features import FeatureConfig, extract_features
+    from .geometry import box_iou, match_boxes
+    from .images import list_images, read_image, write_image
+    from .search import SearchPlan, SearchScale, search
+    from .tracker import Tracker, TrackerConfig
+    from .tables import read_boxes_csv, write_boxes_csv
+    from .video import VideoWriter, probe_video, process_video, read_frames

@@ -20,7 +20,10 @@ import json
 import os
 import time
 import zipfile
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
 from importlib import resources
 from pathlib import Path
 
@@ -28,15 +31,18 @@ import numpy as np
 
 from . import __version__
 from ._files import atomic_output
+from .config import DetectorConfig
 from .data import Dataset
 from .errors import ModelError
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
+from .search import SearchPlan
 
 __all__ = [
     "MODEL_FORMAT",
     "DEFAULT_C",
     "VehicleClassifier",
     "default_model_path",
+    "load_model",
     "load_default_model",
     "split_indices",
     "train",
@@ -47,7 +53,11 @@ __all__ = [
 MODEL_FORMAT = "vehicle-detection-model"
 #: SVM regularisation used by default (chosen with the sweep on the grouped split).
 DEFAULT_C = 3e-4
-MODEL_FORMAT_VERSION = 1
+MODEL_FORMAT_VERSION = 2
+# Caps on a model file's members, checked before anything is read: a header is a few KB, and the
+# largest feature vector of any sensible FeatureConfig is well under a million floats.
+_MAX_HEADER_BYTES = 1 << 20
+_MAX_ARRAY_BYTES = 64 << 20
 _ARRAYS = ("scaler_mean", "scaler_scale", "coef", "intercept")
 
 
@@ -71,16 +81,17 @@ def _digest(arrays: dict[str, np.ndarray], header: dict) -> str:
     return h.hexdigest()
 
 
+@dataclass(frozen=True, eq=False)
 class VehicleClassifier:
-    """A trained linear vehicle classifier over :func:`~vehicle_detection.features.extract_features`.
+    """A trained linear vehicle classifier and the detector settings tuned to it; immutable.
 
     Parameters
     ----------
     config : FeatureConfig
         Features the model was trained on.
-    scaler_mean, scaler_scale : ndarray of float64, shape (n_features,)
+    scaler_mean, scaler_scale : array_like of float, shape (n_features,)
         Standardisation: ``z = (x - mean) / scale``.
-    coef : ndarray of float64, shape (n_features,)
+    coef : array_like of float, shape (n_features,)
         SVM weights over standardised features.
     intercept : float
         SVM bias; the decision is ``z @ coef + intercept`` (> 0: vehicle).
@@ -88,27 +99,79 @@ class VehicleClassifier:
         Training report (accuracies, timings), saved with the model.
     library_version : str, optional
         Version of the library that trained the model.
+    detector_config : DetectorConfig, optional
+        Search plan, heat, blob and tracker settings tuned to this model's margins.
+
+    Attributes
+    ----------
+    weights : ndarray of float64, shape (n_features,)
+        The scaler folded into the SVM: the margin is ``x @ weights + bias`` on raw features.
+    bias : float
+
+    All arrays are read-only copies; use :meth:`replace` for a changed model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> model = load_default_model()
+    >>> model.weights.flags.writeable
+    False
+    >>> bolder = model.replace(intercept=model.intercept + 1.0)
+    >>> float(bolder.bias - model.bias)
+    1.0
     """
 
-    def __init__(self, config, scaler_mean, scaler_scale, coef, intercept, metrics=None, library_version=__version__):
-        self.config = config
-        self.scaler_mean = np.asarray(scaler_mean, dtype=np.float64)
-        self.scaler_scale = np.asarray(scaler_scale, dtype=np.float64)
-        self.coef = np.asarray(coef, dtype=np.float64)
-        self.intercept = float(intercept)
-        self.metrics = dict(metrics or {})
-        self.library_version = str(library_version)
-        n = config.n_features
+    config: FeatureConfig
+    scaler_mean: np.ndarray
+    scaler_scale: np.ndarray
+    coef: np.ndarray
+    intercept: float
+    metrics: Mapping[str, Any] = field(default_factory=dict)
+    library_version: str = __version__
+    detector_config: DetectorConfig = field(default_factory=DetectorConfig)
+    weights: np.ndarray = field(init=False, repr=False)
+    bias: float = field(init=False, repr=False)
+
+    def __post_init__(self):
+        if not isinstance(self.config, FeatureConfig):
+            raise ValueError(f"config must be a FeatureConfig; got {type(self.config).__name__}")
+        if not isinstance(self.detector_config, DetectorConfig):
+            raise ValueError(f"detector_config must be a DetectorConfig; got {type(self.detector_config).__name__}")
+        n = self.config.n_features
+        set_ = object.__setattr__
         for name in ("scaler_mean", "scaler_scale", "coef"):
-            if getattr(self, name).shape != (n,):
-                raise ValueError(f"{name} must have shape ({n},) for this feature config, got {getattr(self, name).shape}")
+            arr = np.array(getattr(self, name), dtype=np.float64, copy=True)
+            if arr.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},) for this feature config, got {arr.shape}")
+            arr.setflags(write=False)
+            set_(self, name, arr)
+        set_(self, "intercept", float(self.intercept))
+        set_(self, "metrics", MappingProxyType(json.loads(json.dumps(dict(self.metrics or {})))))
+        set_(self, "library_version", str(self.library_version))
+        weights = self.coef / self.scaler_scale
+        weights.setflags(write=False)
+        set_(self, "weights", weights)
+        set_(self, "bias", float(self.intercept - np.dot(self.coef, self.scaler_mean / self.scaler_scale)))
 
     def __repr__(self):
         return f"VehicleClassifier({self.config!r}, n_features={self.config.n_features})"
 
+    def replace(self, **changes: Any) -> VehicleClassifier:
+        """A new model with some fields replaced, e.g. ``model.replace(detector_config=...)``."""
+        return dataclasses.replace(self, **changes)
+
     # --- fitting -------------------------------------------------------------------------------
     @classmethod
-    def fit(cls, features: np.ndarray, labels: np.ndarray, config: FeatureConfig, *, C: float = DEFAULT_C, max_iter: int = 5000):
+    def fit(
+        cls,
+        features: np.ndarray,
+        labels: np.ndarray,
+        config: FeatureConfig,
+        *,
+        C: float = DEFAULT_C,
+        max_iter: int = 5000,
+        detector_config: DetectorConfig | None = None,
+    ) -> VehicleClassifier:
         """Fit ``StandardScaler`` + ``LinearSVC`` on feature vectors.
 
         Parameters
@@ -120,6 +183,8 @@ class VehicleClassifier:
             The config that produced ``features``.
         C : float
             SVM regularisation (smaller: wider margin).
+        detector_config : DetectorConfig, optional
+            Settings saved with the model; the library's defaults when None.
         """
         from sklearn.pipeline import make_pipeline
         from sklearn.preprocessing import StandardScaler
@@ -129,13 +194,12 @@ class VehicleClassifier:
         pipe.fit(features, labels)
         scaler, svm = pipe[0], pipe[1]
         scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
-        return cls(config, scaler.mean_, scale, svm.coef_[0], svm.intercept_[0])
+        return cls(config, scaler.mean_, scale, svm.coef_[0], svm.intercept_[0], detector_config=detector_config or DetectorConfig())
 
     # --- prediction ----------------------------------------------------------------------------
     def decision_function(self, features: np.ndarray) -> np.ndarray:
         """Signed SVM margin of feature vectors, shape (N,) (or a float for one vector)."""
-        w, b = self.folded()
-        return np.asarray(features, dtype=np.float64) @ w + b
+        return np.asarray(features, dtype=np.float64) @ self.weights + self.bias
 
     def predict(self, features: np.ndarray) -> np.ndarray:
         """1 where the margin is positive (vehicle), else 0."""
@@ -144,11 +208,6 @@ class VehicleClassifier:
     def decision_images(self, images: np.ndarray) -> np.ndarray:
         """Margins of RGB ``uint8`` patches ``(N, window, window, 3)``."""
         return self.decision_function(extract_features(images, self.config))
-
-    def folded(self) -> tuple[np.ndarray, float]:
-        """Weights and bias over raw features, the scaler folded in: ``x @ w + b``."""
-        w = self.coef / self.scaler_scale
-        return w, float(self.intercept - np.dot(self.coef, self.scaler_mean / self.scaler_scale))
 
     # --- persistence ---------------------------------------------------------------------------
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -159,8 +218,12 @@ class VehicleClassifier:
             "intercept": np.array([self.intercept]),
         }
 
-    def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        """Write the model as an ``.npz`` of float arrays plus a JSON header, atomically."""
+    def save(self, path: str | os.PathLike, *, overwrite: bool = False, inputs=()) -> Path:
+        """Write the model as an ``.npz`` of float arrays plus a JSON header, atomically.
+
+        The header holds the feature config, the detector config, the library version, the
+        training metrics and a SHA-256 over header and arrays.
+        """
         arrays = self._arrays()
         meta = {
             "format": MODEL_FORMAT,
@@ -168,12 +231,13 @@ class VehicleClassifier:
             "library_version": self.library_version,
             "feature_format": FEATURE_FORMAT,
             "feature_config": self.config.to_dict(),
-            "metrics": self.metrics,
+            "detector_config": self.detector_config.to_dict(),
+            "metrics": dict(self.metrics),
         }
         meta["sha256"] = _digest(arrays, meta)
         meta_bytes = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), dtype=np.uint8)
         path = Path(path)
-        with atomic_output(path, overwrite=overwrite) as tmp:
+        with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, meta=meta_bytes, **arrays)
         return path
@@ -182,31 +246,21 @@ class VehicleClassifier:
     def load(cls, path: str | os.PathLike) -> VehicleClassifier:
         """Read and check a model file.
 
+        A model file of format version 1 (library 0.1, which saved no detector settings) is
+        migrated: it gets the settings that library ran every model with.
+
         Raises
         ------
         ModelError
-            Missing, truncated or tampered file; unknown format; feature configuration or
-            feature format that the running code does not produce; a model from a newer
+            Missing, truncated, oversized or tampered file; unknown format; feature configuration
+            or feature format that the running code does not produce; a model from a newer
             library; arrays whose shapes do not fit the configuration. The message names the
             file and the problem.
         """
         path = Path(path)
         if not path.is_file():
             raise ModelError(f"{path}: model file not found")
-        try:
-            npz = np.load(path, allow_pickle=False)
-            if not isinstance(npz, np.lib.npyio.NpzFile):
-                raise ModelError(f"{path}: not a {MODEL_FORMAT} file (a single .npy array, not an .npz archive)")
-            with npz:
-                keys = set(npz.files)
-                expected = {"meta", *_ARRAYS}
-                if keys != expected:
-                    raise ModelError(f"{path}: not a {MODEL_FORMAT} file: arrays {sorted(keys)}, expected {sorted(expected)}")
-                data = {k: npz[k] for k in expected}
-        except ModelError:
-            raise
-        except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as exc:
-            raise ModelError(f"{path}: unreadable model file (truncated, corrupt or not an .npz): {exc}") from None
+        data = _read_npz(path)
         meta_arr = data["meta"]
         if meta_arr.dtype != np.uint8 or meta_arr.ndim != 1:
             raise ModelError(f"{path}: model header has the wrong type")
@@ -214,10 +268,13 @@ class VehicleClassifier:
             meta = json.loads(meta_arr.tobytes().decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ModelError(f"{path}: model header is not valid JSON: {exc}") from None
+        except RecursionError:
+            raise ModelError(f"{path}: model header is nested too deeply") from None
         if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
             raise ModelError(f"{path}: not a {MODEL_FORMAT} file")
-        if meta.get("format_version") != MODEL_FORMAT_VERSION:
-            raise ModelError(f"{path}: model format version {meta.get('format_version')!r} is not supported (expected {MODEL_FORMAT_VERSION})")
+        version = meta.get("format_version")
+        if version not in (1, MODEL_FORMAT_VERSION):
+            raise ModelError(f"{path}: model format version {version!r} is not supported (expected 1 or {MODEL_FORMAT_VERSION})")
         lib = str(meta.get("library_version", "?"))
         if _version_tuple(lib) > _version_tuple(__version__):
             raise ModelError(f"{path}: trained by vehicle-detection {lib}, newer than this {__version__}; upgrade the library")
@@ -230,6 +287,10 @@ class VehicleClassifier:
             config = FeatureConfig.from_dict(meta.get("feature_config"))
         except (TypeError, ValueError) as exc:
             raise ModelError(f"{path}: feature config does not match this code: {exc}") from None
+        try:
+            detector_config = _V1_DETECTOR_CONFIG() if version == 1 else DetectorConfig.from_dict(meta.get("detector_config"))
+        except (TypeError, ValueError) as exc:
+            raise ModelError(f"{path}: detector config does not match this code: {exc}") from None
         n = config.n_features
         arrays = {}
         for name in _ARRAYS:
@@ -255,12 +316,67 @@ class VehicleClassifier:
             arrays["intercept"][0],
             metrics=metrics,
             library_version=lib,
+            detector_config=detector_config,
         )
+
+
+def _V1_DETECTOR_CONFIG() -> DetectorConfig:
+    """The settings library 0.1 ran every model with (its model files saved none)."""
+    from .search import SearchScale
+    from .tracker import TrackerConfig
+
+    plan = SearchPlan(
+        scales=(
+            SearchScale(1.0, 400, 496, step=2),
+            SearchScale(1.5, 400, 544, step=1),
+            SearchScale(2.0, 400, 592, step=1),
+            SearchScale(3.0, 400, 688, step=1),
+        ),
+        threshold=0.3,
+        reference_height=720,
+    )
+    tracker = TrackerConfig(
+        decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
+        aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64),
+    )
+    return DetectorConfig(plan=plan, tracker=tracker, image_threshold=2.0)
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of a model file, refusing oversized members before reading them."""
+    expected = {"meta", *_ARRAYS}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = {i.filename.removesuffix(".npy"): i for i in zf.infolist()}
+            if set(infos) != expected:
+                raise ModelError(f"{path}: not a {MODEL_FORMAT} file: arrays {sorted(infos)}, expected {sorted(expected)}")
+            for name, info in infos.items():
+                limit = _MAX_HEADER_BYTES if name == "meta" else _MAX_ARRAY_BYTES
+                if info.file_size > limit:
+                    raise ModelError(f"{path}: array {name} is {info.file_size} bytes unpacked, more than a model holds ({limit})")
+        with np.load(path, allow_pickle=False) as npz:
+            return {k: npz[k] for k in expected}
+    except ModelError:
+        raise
+    except zipfile.BadZipFile:
+        # np.save of a single array is no zip: say so rather than "bad zip".
+        with open(path, "rb") as f:
+            magic = f.read(6)
+        if magic == b"\x93NUMPY":
+            raise ModelError(f"{path}: not a {MODEL_FORMAT} file (a single .npy array, not an .npz archive)") from None
+        raise ModelError(f"{path}: unreadable model file (truncated, corrupt or not an .npz)") from None
+    except (EOFError, OSError, ValueError, KeyError, zipfile.LargeZipFile, NotImplementedError) as exc:
+        raise ModelError(f"{path}: unreadable model file (truncated, corrupt or not an .npz): {exc}") from None
 
 
 def default_model_path() -> Path:
     """Path of the model shipped inside the package."""
     return Path(str(resources.files("vehicle_detection") / "models" / "default.npz"))
+
+
+def load_model(path: str | os.PathLike | None = None) -> VehicleClassifier:
+    """A model file (see :meth:`VehicleClassifier.load`), or the embedded default model for None."""
+    return VehicleClassifier.load(default_model_path() if path is None else path)
 
 
 def load_default_model() -> VehicleClassifier:
@@ -365,8 +481,7 @@ def train(
         test_size=test_size,
         random_state=random_state,
     )
-    model.metrics = metrics
-    return model
+    return model.replace(metrics=metrics)
 
 
 # --- parameter sweep ---------------------------------------------------------------------------

@@ -306,9 +306,11 @@ def _default_outputs(inp: Path, kind: str):
 
 def _cmd_detect(args) -> int:
     from ._files import check_output_path
-    from .boxes import BoxTable, write_boxes_csv
+    from .detections import Detections
+    from .drawing import draw_detections
     from .images import IMAGE_EXTENSIONS, list_images, read_image, write_image
-    from .video import annotate_frame, process_video
+    from .tables import write_boxes_csv
+    from .video import process_video
 
     inp = Path(args.input)
     if not inp.exists():
@@ -345,7 +347,7 @@ def _cmd_detect(args) -> int:
             inp, out, detector=detector, boxes_csv=boxes, overwrite=args.overwrite, progress=not args.no_progress,
             preset=args.preset, crf=args.crf,
         )
-        n = len(set(table.frame.tolist()))
+        n = len(table.frames())
         print(f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)")
         return 0
     files = [inp] if kind == "image" else list_images(inp)
@@ -353,17 +355,17 @@ def _cmd_detect(args) -> int:
     inputs = [*files, *model_inputs]
     for o in [*outs, boxes]:
         check_output_path(o, overwrite=args.overwrite, inputs=inputs)
-    rows = []
+    found = []
     new_folders = [d for d in (out, boxes.parent) if kind == "folder" and not d.exists()]
     written = []
     try:
         for i, (f, o) in enumerate(zip(files, outs)):
             image = read_image(f)
-            det = detector.detect_image(image)
-            written.append(write_image(o, annotate_frame(image, det.boxes), overwrite=args.overwrite, inputs=inputs))
-            rows.extend((i, b, -1, s) for b, s in zip(det.boxes, det.scores))
-            print(f"{f}: {len(det.boxes)} vehicles -> {o}")
-        write_boxes_csv(boxes, BoxTable.from_rows(rows) if rows else BoxTable.empty(), overwrite=args.overwrite, inputs=inputs)
+            det = detector.detect_image(image).replace(frame=i)
+            written.append(write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs))
+            found.append(det)
+            print(f"{f}: {len(det)} vehicles -> {o}")
+        write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs)
     except BaseException:
         # A folder that fails part-way (a corrupt image, Ctrl-C) must not leave a half set of
         # annotated images that looks like a result: remove what this run wrote.
@@ -404,7 +406,7 @@ def _cmd_evaluate(args) -> int:
     t = time.perf_counter()
     table = process_video(args.video, None, detector=detector, progress=not args.no_progress, max_frames=last)
     seconds = time.perf_counter() - t
-    results = evaluate_detections(table.by_frame(), labels, iou_thresholds=(0.5, 0.3))
+    results = evaluate_detections(table, labels, iou_thresholds=(0.5, 0.3))
     for thr, s in results.items():
         print(
             f"IoU >= {thr}: precision {s.precision:.3f}  recall {s.recall:.3f}  F1 {s.f1:.3f}  "

@@ -32,10 +32,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
 
 from ._files import read_text
+from .detections import Detections
 from .errors import InputError
+from .geometry import MAX_COORD, as_boxes, box_area, box_intersection, box_iou, match_boxes
 
 __all__ = [
     "FrameLabels",
@@ -43,102 +44,18 @@ __all__ = [
     "FrameMatch",
     "Scores",
     "load_annotations",
-    "box_iou",
     "match_frame",
     "evaluate_detections",
 ]
 
-# Annotation coordinates beyond this are certainly typos (and would not fit the int arrays).
-_MAX_COORD = 2**31 - 1
 _FRAME_KEY = re.compile(r"0|[1-9][0-9]*", re.ASCII)
 _FRAME_FIELDS = ("cars", "ignore")
 
 
-# --------------------------------------------------------------------------------------------
-# Box arrays
-# --------------------------------------------------------------------------------------------
-def _as_boxes(boxes: ArrayLike, name: str, *, integer: bool = False) -> np.ndarray:
-    """Validate ``boxes`` as an ``(n, 4)`` array; raise ``ValueError`` naming ``name``.
-
-    Empty inputs (``[]``, shape ``(0,)``) become shape ``(0, 4)``. Coordinates must be finite with
-    ``x2 >= x1`` and ``y2 >= y1`` (zero-area boxes are allowed here). With ``integer`` the result is
-    ``int64`` and non-integral values are refused; otherwise it is ``float64``.
-    """
-    arr = np.asarray(boxes)
-    if arr.size == 0:
-        arr = arr.reshape(0, 4)
-    if arr.ndim != 2 or arr.shape[1] != 4:
-        raise ValueError(f"{name} must have shape (n, 4) as [x1, y1, x2, y2]; got shape {arr.shape}")
-    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-        raise ValueError(f"{name} must hold numbers; got dtype {arr.dtype}")
-    if np.issubdtype(arr.dtype, np.floating):
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name} holds NaN or infinite coordinates")
-        if integer:
-            if np.any(arr != np.round(arr)):
-                raise ValueError(f"{name} must hold whole pixel coordinates; round them first (np.rint)")
-            if np.any(np.abs(arr) > _MAX_COORD):
-                raise ValueError(f"{name} holds coordinates beyond {_MAX_COORD}")
-    arr = arr.astype(np.int64 if integer else np.float64, copy=False)
-    bad = np.flatnonzero((arr[:, 2] < arr[:, 0]) | (arr[:, 3] < arr[:, 1]))
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(f"{name}[{i}] = {arr[i].tolist()} has x2 < x1 or y2 < y1")
-    return arr
-
-
 def _frozen_int_boxes(boxes: ArrayLike, name: str) -> np.ndarray:
-    arr = np.array(_as_boxes(boxes, name, integer=True), dtype=np.int64, copy=True)
+    arr = np.array(as_boxes(boxes, name, integer=True), dtype=np.int64, copy=True)
     arr.setflags(write=False)
     return arr
-
-
-def _areas(boxes: np.ndarray) -> np.ndarray:
-    return (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-
-
-def _intersections(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pairwise intersection areas, shape ``(len(a), len(b))``, float64."""
-    w = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
-    h = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
-    return np.clip(w, 0, None) * np.clip(h, 0, None)
-
-
-def box_iou(a: ArrayLike, b: ArrayLike) -> np.ndarray:
-    """Pairwise intersection over union of two sets of boxes.
-
-    Parameters
-    ----------
-    a : array_like, shape (n, 4)
-        Boxes ``[x1, y1, x2, y2]`` (x2, y2 exclusive), any integer or float dtype. An empty input
-        (``[]``) is read as shape ``(0, 4)``.
-    b : array_like, shape (m, 4)
-        Boxes as for ``a``.
-
-    Returns
-    -------
-    ndarray of float64, shape (n, m)
-        ``iou[i, j]`` is the IoU of ``a[i]`` and ``b[j]``, in ``[0, 1]``. Two boxes whose union has
-        zero area (both degenerate) have IoU 0.
-
-    Raises
-    ------
-    ValueError
-        If a set is not of shape ``(n, 4)``, holds non-finite values, or has ``x2 < x1`` or
-        ``y2 < y1``.
-
-    Examples
-    --------
-    >>> box_iou([[0, 0, 10, 10]], [[0, 0, 10, 10], [5, 0, 15, 10], [20, 20, 30, 30]])
-    array([[1.        , 0.33333333, 0.        ]])
-    """
-    a = _as_boxes(a, "a")
-    b = _as_boxes(b, "b")
-    inter = _intersections(a, b)
-    union = _areas(a)[:, None] + _areas(b)[None, :] - inter
-    iou = np.zeros_like(inter)
-    np.divide(inter, union, out=iou, where=union > 0)
-    return np.clip(iou, 0.0, 1.0, out=iou)
 
 
 # --------------------------------------------------------------------------------------------
@@ -225,8 +142,8 @@ def _parse_box(value: Any, where: str, path: Path) -> list[int]:
             raise fail(f"{name} is not a number")
         if isinstance(v, float) and not v.is_integer():
             raise fail(f"{name} = {v} is not a whole pixel")
-        if v < 0 or v > _MAX_COORD:
-            raise fail(f"{name} = {v} is outside 0..{_MAX_COORD}")
+        if v < 0 or v > MAX_COORD:
+            raise fail(f"{name} = {v} is outside 0..{MAX_COORD}")
         coords.append(int(v))
     x1, y1, x2, y2 = coords
     if x2 <= x1:
@@ -287,6 +204,8 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
         raise InputError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except ValueError as exc:  # from the hooks above
         raise InputError(f"{path}: invalid annotation JSON: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply") from None
 
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object with 'frames', got {type(doc).__name__}")
@@ -306,6 +225,8 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
                 f"{path}: frame key {json.dumps(key)} is not a non-negative integer "
                 "(a 0-based frame index written without sign, spaces or leading zeros)"
             )
+        if len(key) > 10 or int(key) > MAX_COORD:
+            raise InputError(f"{path}: frame key {key} is beyond the largest frame index {MAX_COORD}")
         frames[int(key)] = _parse_frame(key, value, path)
     return Annotations(video=video, frames=dict(sorted(frames.items())))
 
@@ -404,7 +325,7 @@ def match_frame(
     """
     iou_threshold = _check_fraction(iou_threshold, "iou_threshold")
     ignore_overlap = _check_fraction(ignore_overlap, "ignore_overlap")
-    dets = _as_boxes(detections, "detections")
+    dets = as_boxes(detections, "detections")
     if not isinstance(labels, FrameLabels):
         labels = FrameLabels(cars=labels)
     cars = labels.cars.astype(np.float64)
@@ -415,24 +336,15 @@ def match_frame(
     pair_iou = np.zeros(0, dtype=np.float64)
     if n_det and n_car:
         iou = box_iou(dets, cars)
-        valid = iou >= iou_threshold
-        if valid.any():
-            # Each valid pair is worth `bonus` (> any total IoU) plus its IoU, so the optimum has
-            # the most pairs first, then the largest IoU sum; invalid pairs are worth nothing.
-            bonus = float(min(n_det, n_car) + 1)
-            weight = np.where(valid, bonus + iou, 0.0)
-            rows, cols = linear_sum_assignment(weight, maximize=True)
-            keep = valid[rows, cols]
-            det_idx = rows[keep].astype(np.intp)
-            car_idx = cols[keep].astype(np.intp)
-            pair_iou = iou[det_idx, car_idx]
+        det_idx, car_idx = match_boxes(iou, iou_threshold)
+        pair_iou = iou[det_idx, car_idx]
 
     unmatched = np.setdiff1d(np.arange(n_det, dtype=np.intp), det_idx)
     inside = np.zeros(len(unmatched), dtype=bool)
     if len(unmatched) and len(labels.ignore):
         cand = dets[unmatched]
-        area = _areas(cand)
-        inter = _intersections(cand, labels.ignore.astype(np.float64))
+        area = box_area(cand)
+        inter = box_intersection(cand, labels.ignore.astype(np.float64))
         frac = np.zeros_like(inter)
         np.divide(inter, area[:, None], out=frac, where=area[:, None] > 0)
         inside = (frac >= ignore_overlap).any(axis=1)
@@ -519,7 +431,7 @@ class Scores:
 
 
 def evaluate_detections(
-    detections_by_frame: Mapping[int, ArrayLike],
+    detections: Detections | Mapping[int, ArrayLike],
     annotations: Annotations,
     iou_thresholds: Iterable[float] = (0.5, 0.3),
     *,
@@ -529,9 +441,10 @@ def evaluate_detections(
 
     Parameters
     ----------
-    detections_by_frame : mapping of int to array_like of shape (k, 4)
-        Detected boxes by 0-based decoded frame index, e.g. from
-        :func:`vehicle_detection.boxes.read_boxes_csv`. Only annotated frames are scored: an
+    detections : Detections, or mapping of int to array_like of shape (k, 4)
+        Detected boxes with their 0-based decoded frame indexes (e.g. from
+        :func:`vehicle_detection.tables.read_boxes_csv`), or boxes by frame index. Only
+        annotated frames are scored: an
         annotated frame missing here counts as a frame with no detections, and frames that are not
         annotated are skipped.
     annotations : Annotations
@@ -558,9 +471,10 @@ def evaluate_detections(
         raise ValueError("iou_thresholds is empty; give at least one threshold")
     ignore_overlap = _check_fraction(ignore_overlap, "ignore_overlap")
 
+    by_frame = {f: d.xyxy for f, d in detections.by_frame().items()} if isinstance(detections, Detections) else detections
     dets: dict[int, np.ndarray] = {}
     for frame in annotations.frames:
-        dets[frame] = _as_boxes(detections_by_frame.get(frame, ()), f"detections of frame {frame}")
+        dets[frame] = as_boxes(by_frame.get(frame, ()), f"detections of frame {frame}")
 
     result: dict[float, Scores] = {}
     for t in thresholds:

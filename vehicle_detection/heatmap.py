@@ -24,7 +24,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import ndimage
 
-from .evaluate import _as_boxes
+from .detections import Detections
+from .geometry import as_boxes
 
 __all__ = [
     "add_heat",
@@ -111,7 +112,7 @@ def _check_connectivity(connectivity: int) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # Heat
 # --------------------------------------------------------------------------------------------
-def add_heat(heat: ArrayLike, boxes: ArrayLike, weights: ArrayLike | None = None, *, cell: int = 1) -> np.ndarray:
+def add_heat(heat: ArrayLike, boxes: ArrayLike | Detections, weights: ArrayLike | None = None, *, cell: int = 1) -> np.ndarray:
     """Add the weight of every box to the heat cells it covers.
 
     Parameters
@@ -157,7 +158,7 @@ def add_heat(heat: ArrayLike, boxes: ArrayLike, weights: ArrayLike | None = None
     """
     base = _check_heat(heat)
     cell = _check_cell(cell)
-    box_arr = _as_boxes(boxes, "boxes")
+    box_arr = as_boxes(boxes.xyxy if isinstance(boxes, Detections) else boxes, "boxes")
     n = len(box_arr)
     if weights is None:
         w = np.ones(n, dtype=np.float64)

@@ -620,14 +620,15 @@ def _label_cmap():
 
 
 def detection_stages_figure(
-    items: Sequence[tuple[str, np.ndarray, object]], detector, *, rows: tuple[int, int] | None = None, scale_legend: bool = True
+    items: Sequence[tuple[str, np.ndarray, object, object]], detector, *, rows: tuple[int, int] | None = None, scale_legend: bool = True
 ):
     """One row per image: hot windows by scale, heat map, labelled blobs, final boxes.
 
     Parameters
     ----------
-    items : sequence of (name, frame, ImageDetection)
-        Results of :meth:`Detector.detect_image`.
+    items : sequence of (name, frame, windows, found)
+        A frame, its hot windows (:meth:`Detector.windows`) and its vehicles
+        (:meth:`Detector.detect_image`), both :class:`~vehicle_detection.detections.Detections`.
     detector : Detector
         For its plan (scale names), heat cell size and image threshold.
     rows : (int, int), optional
@@ -635,25 +636,26 @@ def detection_stages_figure(
     """
     from .heatmap import label_heat
 
-    cell, thr = detector.tracker.cell, detector.image_threshold
+    cell, thr = detector.config.tracker.cell, detector.config.image_threshold
+    plan = detector.config.plan
     fig, axes = _grid(len(items), 4, 3.2, _panel_height(3.2, items[0][1].shape, rows))
     cmap = _label_cmap()
-    for r, (name, frame, det) in enumerate(items):
+    for r, (name, frame, wins, found) in enumerate(items):
         h, w = frame.shape[:2]
-        extent = (0, det.heat.shape[1] * cell, det.heat.shape[0] * cell, 0)
-        wins = det.windows
+        heat = detector.heat(frame.shape, wins)
+        extent = (0, heat.shape[1] * cell, heat.shape[0] * cell, 0)
         _frame_ax(axes[r, 0], frame)
-        for k in range(len(detector.plan.scales)):
-            _boxes(axes[r, 0], wins.boxes[wins.scale_index == k], color=SCALE_COLORS[k % len(SCALE_COLORS)], lw=0.7)
+        for k in range(len(plan.scales)):
+            _boxes(axes[r, 0], wins.xyxy[wins.data["scale_index"] == k], color=SCALE_COLORS[k % len(SCALE_COLORS)], lw=0.7)
         axes[r, 0].set_ylabel(name, fontsize=9)
         _frame_ax(axes[r, 1], frame, dim=0.35)
-        peak = float(det.heat.max())
-        axes[r, 1].imshow(np.ma.masked_less_equal(det.heat, 0), cmap="hot", norm=_heat_norm(max(peak, thr)), extent=extent, interpolation="nearest")
-        labels, n = label_heat(det.heat, thr)
+        peak = float(heat.max())
+        axes[r, 1].imshow(np.ma.masked_less_equal(heat, 0), cmap="hot", norm=_heat_norm(max(peak, thr)), extent=extent, interpolation="nearest")
+        labels, n = label_heat(heat, thr)
         _frame_ax(axes[r, 2], frame, dim=0.35)
         axes[r, 2].imshow(np.ma.masked_equal(np.where(labels > 0, (labels - 1) % 63 + 1, 0), 0), cmap=cmap, vmin=0, vmax=63, extent=extent, interpolation="nearest")
         _frame_ax(axes[r, 3], frame)
-        _boxes(axes[r, 3], det.boxes, lw=2.0, labels=[f"{s:.1f}" for s in det.scores])
+        _boxes(axes[r, 3], found.xyxy, lw=2.0, labels=[f"{s:.1f}" for s in found.score])
         if r == 0:
             axes[r, 0].set_title("hot windows (colour = window size)", fontsize=9)
             axes[r, 1].set_title("heat: 1 + margin per window", fontsize=9)
@@ -664,8 +666,8 @@ def detection_stages_figure(
         _tag(axes[r, 2], f"{n} blobs")
         _view(axes[r], w, h, rows)
     if scale_legend:
-        handles = [Rectangle((0, 0), 1, 1, fc="none", ec=SCALE_COLORS[k % len(SCALE_COLORS)], lw=2) for k in range(len(detector.plan.scales))]
-        names = [f"{detector.model.config.window * s.scale:.0f}px" for s in detector.plan.scales]
+        handles = [Rectangle((0, 0), 1, 1, fc="none", ec=SCALE_COLORS[k % len(SCALE_COLORS)], lw=2) for k in range(len(plan.scales))]
+        names = [f"{detector.model.config.window * s.scale:.0f}px" for s in plan.scales]
         fig.legend(handles, names, loc="outside lower center", ncol=len(names), fontsize=8, frameon=False, title="window size", title_fontsize=8)
     return fig
 
@@ -694,44 +696,46 @@ def track_frames(detector, frames, first: int, count: int = 6):
 
     Returns
     -------
-    list of (frame, FrameDetection, integrated heat)
-        What :func:`frame_sequence_figure` draws; the integrated heat is a copy of the
-        tracker's state after the frame.
+    list of (frame, index, windows, tracked, integrated heat)
+        What :func:`frame_sequence_figure` draws: the frame, its index, its hot windows, the
+        live confirmed tracks (no back-fill), and a copy of the tracker's integrated heat after
+        the frame.
     """
     import itertools
 
     tracker = detector.new_tracker()
     records = []
-    for frame in itertools.islice(frames, first + count):
-        det = detector.step(frame, tracker)
-        if det.index >= first:
-            records.append((frame, det, tracker.state.integrated.copy()))
+    for index, frame in enumerate(itertools.islice(frames, first + count)):
+        wins = detector.windows(frame)
+        found = detector.track_step(frame.shape, wins, tracker)
+        if index >= first:
+            records.append((frame, index, wins, found, tracker.state.integrated.copy()))
     return records
 
 
-def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray]], detector, *, rows: tuple[int, int] | None = None):
+def frame_sequence_figure(records: Sequence[tuple], detector, *, rows: tuple[int, int] | None = None):
     """Consecutive frames: hot windows, integrated heat (threshold contour), confirmed tracks.
 
     Parameters
     ----------
-    records : sequence of (frame, FrameDetection, integrated heat)
-        ``integrated`` is a copy of ``tracker.state.integrated`` after the frame.
+    records : sequence of (frame, index, windows, tracked, integrated heat)
+        As :func:`track_frames` returns them.
     detector : Detector
         For the tracker's cell size and threshold.
     rows : (int, int), optional
         Crop every panel to these pixel rows.
     """
-    cfg = detector.tracker
+    cfg = detector.config.tracker
     cell = cfg.cell
-    norm = _heat_norm(max(float(max(r[2].max() for r in records)), cfg.threshold * 2))
+    norm = _heat_norm(max(float(max(r[4].max() for r in records)), cfg.threshold * 2))
     fig, axes = _grid(len(records), 3, 3.6, _panel_height(3.6, records[0][0].shape, rows) + 0.05)
-    for r, (frame, det, integ) in enumerate(records):
+    for r, (frame, index, wins, found, integ) in enumerate(records):
         h, w = frame.shape[:2]
         extent = (0, integ.shape[1] * cell, integ.shape[0] * cell, 0)
         _frame_ax(axes[r, 0], frame)
-        _boxes(axes[r, 0], det.windows.boxes, color=SCALE_COLORS[0], lw=0.6)
-        axes[r, 0].set_ylabel(f"frame {det.index}", fontsize=9)
-        _tag(axes[r, 0], f"{len(det.windows)} windows")
+        _boxes(axes[r, 0], wins.xyxy, color=SCALE_COLORS[0], lw=0.6)
+        axes[r, 0].set_ylabel(f"frame {index}", fontsize=9)
+        _tag(axes[r, 0], f"{len(wins)} windows")
         _frame_ax(axes[r, 1], frame, dim=0.35)
         axes[r, 1].imshow(np.ma.masked_less_equal(integ, 0), cmap="hot", norm=norm, extent=extent, interpolation="nearest")
         if (integ > cfg.threshold).any():
@@ -739,8 +743,8 @@ def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray
             axes[r, 1].contour(xx, yy, integ, levels=[cfg.threshold], colors=SCALE_COLORS[0], linewidths=0.9)
         _tag(axes[r, 1], f"peak {float(integ.max()):.0f}")
         _frame_ax(axes[r, 2], frame)
-        _boxes(axes[r, 2], det.boxes, lw=2.0, labels=[f"car {t}" for t in det.track_ids])
-        _tag(axes[r, 2], f"{len(det.boxes)} reported")
+        _boxes(axes[r, 2], found.xyxy, lw=2.0, labels=[f"car {t}" for t in found.track_id])
+        _tag(axes[r, 2], f"{len(found)} reported")
         if r == 0:
             axes[r, 0].set_title("hot windows of the frame", fontsize=9)
             axes[r, 1].set_title(f"integrated heat (decay {cfg.decay:g}), contour at {cfg.threshold:g}", fontsize=9)
@@ -750,7 +754,7 @@ def frame_sequence_figure(records: Sequence[tuple[np.ndarray, object, np.ndarray
 
 
 def tracks_timeline_figure(table, n_frames: int, *, title: str = ""):
-    """Which track is reported in which frame (a :class:`~vehicle_detection.boxes.BoxTable`)."""
+    """Which track is reported in which frame (tracked :class:`~vehicle_detection.detections.Detections`)."""
     fig, (ax, ax2) = plt.subplots(2, 1, layout="constrained", figsize=(9, 2.8), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     ids = np.unique(table.track_id)
     for k, tid in enumerate(ids):
@@ -771,11 +775,12 @@ def tracks_timeline_figure(table, n_frames: int, *, title: str = ""):
     return fig
 
 
-def labelled_frames_figure(frames: Mapping[int, np.ndarray], annotations, detections: Mapping[int, np.ndarray], *, iou_threshold: float = 0.5, ncols: int = 3):
+def labelled_frames_figure(frames: Mapping[int, np.ndarray], annotations, detections, *, iou_threshold: float = 0.5, ncols: int = 3):
     """Labelled frames with their labels and the reported boxes, coloured by match outcome.
 
     Labelled cars are blue (dashed when missed), ignore regions grey dotted; detections are
     green when matched at ``iou_threshold``, red when false positives, orange when ignored.
+    ``detections`` is a :class:`~vehicle_detection.detections.Detections` with frame indexes.
     """
     from .evaluate import match_frame
 
@@ -784,7 +789,7 @@ def labelled_frames_figure(frames: Mapping[int, np.ndarray], annotations, detect
     fig, axes = _grid(nrows, ncols, 4.2, 2.6)
     for ax, i in zip(axes.flat, idx):
         lab = annotations.frames[i]
-        dets = np.asarray(detections.get(i, np.zeros((0, 4))), dtype=float).reshape(-1, 4)
+        dets = detections.at_frame(i).xyxy
         m = match_frame(dets, lab, iou_threshold=iou_threshold)
         _frame_ax(ax, frames[i], title=f"frame {i}: TP {m.tp}, FP {m.fp}, FN {m.fn}")
         _boxes(ax, lab.ignore, color="#bbbbbb", lw=1.0, ls=":")

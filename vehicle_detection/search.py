@@ -22,21 +22,25 @@ video); other frames are resized to that height first and the boxes mapped back.
 from __future__ import annotations
 
 import threading
+import weakref
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numba
 import numpy as np
 
 from ._jit import njit
-from .classifier import VehicleClassifier
+from .detections import Detections
 from .features import FeatureConfig, _block_maps, _gather_block, convert_color, extract_features, hog_input, region_hog
 from .images import as_rgb_uint8
+
+if TYPE_CHECKING:
+    from .classifier import VehicleClassifier
 
 __all__ = [
     "SearchScale",
     "SearchPlan",
-    "Windows",
     "slide_window",
     "classify_windows",
     "plan_windows",
@@ -125,45 +129,17 @@ class SearchPlan:
 
     @classmethod
     def from_dict(cls, d: dict) -> SearchPlan:
-        return cls(
-            scales=tuple(SearchScale(**s) for s in d["scales"]),
-            threshold=float(d["threshold"]),
-            reference_height=int(d["reference_height"]),
-        )
-
-
-@dataclass(frozen=True)
-class Windows:
-    """Scored windows.
-
-    Attributes
-    ----------
-    boxes : ndarray of int64, shape (n, 4)
-        ``[x1, y1, x2, y2]`` in the input frame's pixels (x2, y2 exclusive).
-    scores : ndarray of float64, shape (n,)
-        SVM margins.
-    scale_index : ndarray of int64, shape (n,)
-        Which :attr:`SearchPlan.scales` entry produced each window.
-    """
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    scale_index: np.ndarray
-
-    def __len__(self):
-        return len(self.scores)
-
-    def above(self, threshold: float) -> Windows:
-        """The windows whose margin exceeds ``threshold``."""
-        keep = self.scores > threshold
-        return Windows(self.boxes[keep], self.scores[keep], self.scale_index[keep])
-
-    @staticmethod
-    def concatenate(parts) -> Windows:
-        parts = list(parts)
-        if not parts:
-            return Windows(np.zeros((0, 4), np.int64), np.zeros(0), np.zeros(0, np.int64))
-        return Windows(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("boxes", "scores", "scale_index")))
+        """The inverse of :meth:`to_dict`; a malformed plan raises ``ValueError``."""
+        try:
+            if set(d) != {"scales", "threshold", "reference_height"}:
+                raise ValueError(f"fields {sorted(d)}")
+            return cls(
+                scales=tuple(SearchScale(**s) for s in d["scales"]),
+                threshold=float(d["threshold"]),
+                reference_height=int(d["reference_height"]),
+            )
+        except (TypeError, KeyError, ValueError) as exc:
+            raise ValueError(f"malformed search plan: {exc}") from None
 
 
 # --- the plain path ----------------------------------------------------------------------------
@@ -240,6 +216,10 @@ class _Band:
     cols: np.ndarray
 
 
+def _windows(boxes: np.ndarray, scores: np.ndarray, scale_index: int) -> Detections:
+    return Detections(boxes, score=scores, data={"scale_index": np.full(len(scores), scale_index, np.int64)})
+
+
 def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, float]:
     h, w = frame.shape[:2]
     if h == plan.reference_height:
@@ -295,15 +275,16 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
     return out
 
 
-def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan()) -> Windows:
+def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan()) -> Detections:
     """Score every window of the plan one at a time: crop, extract features, classify.
 
     The reference the fast :func:`search` is tested against; about 100 times slower.
 
     Returns
     -------
-    Windows
-        All windows (not thresholded), in the order of :func:`search`.
+    Detections
+        All windows (not thresholded), in the order of :func:`search`, with their margins as
+        ``score`` and ``data["scale_index"]``.
     """
     frame = as_rgb_uint8(frame, name="frame")
     work, f = _working_frame(frame, plan)
@@ -318,8 +299,8 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan =
             [band.image[r * ppc : r * ppc + side, c * ppc : c * ppc + side] for r in band.rows for c in band.cols]
         )
         scores = model.decision_function(extract_features(patches, cfg))
-        parts.append(Windows(_band_boxes(band, cfg, f), scores, np.full(len(scores), k, np.int64)))
-    return Windows.concatenate(parts)
+        parts.append(_windows(_band_boxes(band, cfg, f), scores, k))
+    return Detections.concatenate(parts)
 
 
 # --- the fast path -----------------------------------------------------------------------------
@@ -448,14 +429,13 @@ def _buffer(name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
     return arr
 
 
-class _FoldedModel:
-    """A model's weights split by feature part, the scaler folded in (cached per model)."""
+class _KernelWeights:
+    """A model's folded weights split by feature part, in the layouts the kernels read."""
 
     def __init__(self, model: VehicleClassifier):
         cfg = model.config
-        w, b = model.folded()
-        lay = cfg.layout()
-        self.bias = b
+        w, lay = model.weights, cfg.layout()
+        self.bias = model.bias
         self.spatial = w[lay["spatial"]].reshape(cfg.spatial_size, cfg.spatial_size, 3) if cfg.spatial_size else np.zeros((0, 0, 3))
         # Weight of each 8-bit value's histogram bin, per channel: (3, 256).
         hist = w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else np.zeros((3, 1))
@@ -465,20 +445,20 @@ class _FoldedModel:
         self.hog32 = self.hog.astype(np.float32)
 
 
-_FOLDED: dict[int, tuple[VehicleClassifier, _FoldedModel]] = {}
+# Models are immutable, so their kernel weights are computed once per model and dropped with it.
+_KERNEL_WEIGHTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _folded(model: VehicleClassifier) -> _FoldedModel:
-    hit = _FOLDED.get(id(model))
-    if hit is None or hit[0] is not model:
-        hit = (model, _FoldedModel(model))
-        _FOLDED.clear()  # one model at a time is the common case; keep the cache small
-        _FOLDED[id(model)] = hit
-    return hit[1]
+def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
+    kw = _KERNEL_WEIGHTS.get(model)
+    if kw is None:
+        kw = _KERNEL_WEIGHTS[model] = _KernelWeights(model)
+    return kw
 
 
-def _score_band(band: _Band, model: VehicleClassifier, folded: _FoldedModel) -> np.ndarray:
+def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
     cfg = model.config
+    folded = _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
     ppc, cpb, nbw = cfg.pixels_per_cell, cfg.cells_per_block, cfg.blocks_per_window
     hog_pixels = hog_input(conv, cfg)
@@ -504,7 +484,7 @@ def _score_band(band: _Band, model: VehicleClassifier, folded: _FoldedModel) -> 
     return out.ravel()
 
 
-def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan(), *, all_windows: bool = False) -> Windows:
+def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan(), *, all_windows: bool = False) -> Detections:
     """Find the windows the classifier calls vehicles, scoring every window of the plan at once.
 
     Parameters
@@ -524,13 +504,12 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = Searc
     frame = as_rgb_uint8(frame, name="frame")
     work, f = _working_frame(frame, plan)
     cfg = model.config
-    folded = _folded(model)
     parts = []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg)
         if band is None:
             continue
-        scores = _score_band(band, model, folded)
-        wins = Windows(_band_boxes(band, cfg, f), scores, np.full(len(scores), k, np.int64))
-        parts.append(wins if all_windows else wins.above(plan.threshold))
-    return Windows.concatenate(parts)
+        scores = _score_band(band, model)
+        keep = slice(None) if all_windows else scores > plan.threshold
+        parts.append(_windows(_band_boxes(band, cfg, f)[keep], scores[keep], k))
+    return Detections.concatenate(parts)

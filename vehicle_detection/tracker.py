@@ -20,14 +20,15 @@ The whole state lives in a :class:`TrackerState`, so a video can be processed in
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
 
-from .evaluate import _as_boxes, box_iou
+from .detections import Detections
+from .geometry import box_iou, match_boxes
 from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat
 
 __all__ = [
@@ -102,16 +103,6 @@ class TrackerConfig:
     peak_fraction: float = 0.3
     split_size: tuple[float, float] = (64, 64)
 
-    @property
-    def frame_threshold(self) -> float:
-        """The threshold on a single frame's heat matching ``threshold`` on integrated heat.
-
-        A blob seen with heat ``h`` on every frame integrates to ``h / (1 - decay)``, so the
-        integrated threshold corresponds to ``threshold * (1 - decay)`` on one frame; single
-        images (no history) use this.
-        """
-        return self.threshold * (1.0 - self.decay)
-
     def __post_init__(self) -> None:
         def real(name: str, ok, rule: str) -> None:
             value = getattr(self, name)
@@ -140,6 +131,19 @@ class TrackerConfig:
             object.__setattr__(self, "split_size", _check_min_size(self.split_size))
         except ValueError as exc:
             raise ValueError(f"TrackerConfig.{exc}") from None
+
+    def to_dict(self) -> dict:
+        """Plain JSON data (pairs as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: Any) -> TrackerConfig:
+        """The inverse of :meth:`to_dict`; unknown or missing fields raise ``ValueError``."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        if not isinstance(d, dict) or set(d) != names:
+            got = sorted(d) if isinstance(d, dict) else type(d).__name__
+            raise ValueError(f"tracker settings must have exactly the fields {sorted(names)}; got {got}")
+        return cls(**d)
 
 
 def window_heat(scores, score_gain: float = 1.0) -> np.ndarray:
@@ -196,7 +200,7 @@ class Track:
 
     def int_box(self) -> np.ndarray:
         """The box rounded to whole pixels (halves up), ``int64`` shape (4,)."""
-        return np.floor(np.asarray(self.box, dtype=np.float64) + 0.5).astype(np.int64)
+        return _int_boxes([self.box])[0]
 
     def copy(self) -> Track:
         """An independent copy (the box array is copied)."""
@@ -270,6 +274,11 @@ def _check_state(state: TrackerState, config: TrackerConfig) -> TrackerState:
     return state
 
 
+def _int_boxes(boxes: list) -> np.ndarray:
+    """Whole-pixel boxes, halves rounded up (the tracker's float boxes as reported)."""
+    return np.floor(np.asarray(boxes, dtype=np.float64).reshape(-1, 4) + 0.5).astype(np.int64)
+
+
 def _frame_hw(frame_shape: Any) -> tuple[int, int]:
     try:
         dims = tuple(frame_shape)
@@ -322,6 +331,7 @@ class Tracker:
             raise ValueError(f"state must be a TrackerState or None; got {type(state).__name__}")
         self._config = config
         self._state = TrackerState() if state is None else _check_state(state.copy(), config)
+        self._backfill = Detections.empty(tracked=True)
 
     @property
     def config(self) -> TrackerConfig:
@@ -337,34 +347,50 @@ class Tracker:
     def reset(self) -> None:
         """Forget everything, as if new: no heat, no tracks, ids restart at 0."""
         self._state = TrackerState()
+        self._backfill = Detections.empty(tracked=True)
 
-    def update(self, boxes: ArrayLike, scores: ArrayLike | None, frame_shape: tuple[int, ...]) -> list[Track]:
+    @property
+    def tracks(self) -> list[Track]:
+        """Copies of the confirmed live tracks after the last update, in increasing ``track_id``."""
+        return [t.copy() for t in self._state.tracks if t.confirmed]
+
+    @property
+    def backfill(self) -> Detections:
+        """Boxes of tracks confirmed by the last update on the frames before it (see :class:`Track`).
+
+        Their ``frame`` column says which earlier frame each box belongs to.
+        """
+        return self._backfill
+
+    def update(self, detections: Detections, frame_shape: tuple[int, ...]) -> Detections:
         """Process one frame's detections.
 
         Parameters
         ----------
-        boxes : array_like, shape (n, 4)
-            Positive detection windows ``[x1, y1, x2, y2]`` in frame pixels (x2, y2 exclusive);
-            parts outside the frame are ignored. ``[]`` for a frame without detections.
-        scores : array_like of float, shape (n,), or None
-            Their SVM margins (finite); a window adds heat ``1 + score_gain * max(score, 0)``.
-            None: heat 1 per window.
+        detections : Detections
+            Positive detection windows of the frame in frame pixels (parts outside the frame are
+            ignored), with their margins above the search threshold as ``score`` (finite); a
+            window adds heat ``1 + score_gain * max(score, 0)``. ``Detections.empty()`` for a
+            frame without detections.
         frame_shape : (H, W) or (H, W, C)
             Shape of the frame; the same for every call (``frame.shape`` will do).
 
         Returns
         -------
-        list of Track
-            Copies of the confirmed live tracks (matched this frame, or unmatched for at most
-            ``max_misses`` frames), in increasing ``track_id``. :meth:`Track.int_box` gives
-            whole-pixel boxes.
+        Detections
+            The confirmed live tracks (matched this frame, or unmatched for at most
+            ``max_misses`` frames) in increasing ``track_id``: whole-pixel boxes (halves
+            rounded up), ``track_id``, the peak integrated heat of each track's last blob as
+            ``score``, and this frame's index as ``frame``.
 
         Raises
         ------
         ValueError
-            If the boxes or scores are malformed, or ``frame_shape`` is invalid or differs from
-            that of earlier frames. The state is unchanged when this is raised.
+            If ``detections`` is not a :class:`Detections`, or ``frame_shape`` is invalid or
+            differs from that of earlier frames. The state is unchanged when this is raised.
         """
+        if not isinstance(detections, Detections):
+            raise ValueError(f"detections must be a Detections; got {type(detections).__name__}")
         cfg = self._config
         st = self._state
         hw = _frame_hw(frame_shape)
@@ -373,16 +399,8 @@ class Tracker:
                 f"frame_shape {hw} differs from the earlier frames' {st.frame_shape}; "
                 "use a new Tracker (or reset()) for another video"
             )
-        win = _as_boxes(boxes, "boxes")
-        if scores is None:
-            weights = np.ones(len(win), dtype=np.float64)
-        else:
-            sc = np.asarray(scores, dtype=np.float64).reshape(-1) if np.size(scores) else np.zeros(0)
-            if sc.shape != (len(win),):
-                raise ValueError(f"scores must have one value per box ({len(win)}); got shape {np.shape(scores)}")
-            if not np.all(np.isfinite(sc)):
-                raise ValueError("scores must be finite")
-            weights = window_heat(sc, cfg.score_gain)
+        win = detections.xyxy
+        weights = window_heat(detections.score, cfg.score_gain)
 
         # 1-2. Heat of this frame, integrated.
         map_shape = (hw[0] // cfg.cell, hw[1] // cfg.cell)
@@ -409,32 +427,23 @@ class Tracker:
         matched_track = np.zeros(len(tracks), dtype=bool)
         matched_cand = np.zeros(len(cand), dtype=bool)
         if tracks and len(cand):
-            track_boxes = np.stack([t.box for t in tracks])
-            iou = box_iou(track_boxes, cand)
-            valid = iou >= cfg.match_iou
-            if valid.any():
-                # A valid pair is worth more than any sum of IoUs, so the optimum has the most
-                # pairs first, then the largest total IoU.
-                bonus = float(min(iou.shape) + 1)
-                rows, cols = linear_sum_assignment(np.where(valid, bonus + iou, 0.0), maximize=True)
-                s = cfg.smoothing
-                for r, c in zip(rows.tolist(), cols.tolist()):
-                    if not valid[r, c]:
-                        continue
-                    t = tracks[r]
-                    t.box = (1.0 - s) * t.box + s * cand[c]
-                    t.hits += 1
-                    t.misses = 0
-                    t.score = float(peaks[c])
-                    t.backfill = []
-                    if not t.confirmed and t.hits >= cfg.min_hits:
-                        t.confirmed = True
-                        t.backfill = t.history
-                        t.history = []
-                    elif not t.confirmed:
-                        t.history.append((st.frame_index, t.box.copy()))
-                    matched_track[r] = True
-                    matched_cand[c] = True
+            rows, cols = match_boxes(box_iou(np.stack([t.box for t in tracks]), cand), cfg.match_iou)
+            s = cfg.smoothing
+            for r, c in zip(rows.tolist(), cols.tolist()):
+                t = tracks[r]
+                t.box = (1.0 - s) * t.box + s * cand[c]
+                t.hits += 1
+                t.misses = 0
+                t.score = float(peaks[c])
+                t.backfill = []
+                if not t.confirmed and t.hits >= cfg.min_hits:
+                    t.confirmed = True
+                    t.backfill = t.history
+                    t.history = []
+                elif not t.confirmed:
+                    t.history.append((st.frame_index, t.box.copy()))
+                matched_track[r] = True
+                matched_cand[c] = True
 
         kept: list[Track] = []
         for t, matched in zip(tracks, matched_track.tolist()):
@@ -458,9 +467,23 @@ class Tracker:
             )
             next_id += 1
 
+        index = st.frame_index
         st.integrated = integrated
         st.tracks = kept
         st.next_id = next_id
         st.frame_index += 1
         st.frame_shape = hw
-        return [t.copy() for t in kept if t.confirmed]
+        fill = [(i, b, t.track_id, t.score) for t in kept for i, b in t.backfill]
+        self._backfill = Detections(
+            _int_boxes([b for _, b, _, _ in fill]),
+            score=[sc for *_, sc in fill],
+            track_id=[tid for _, _, tid, _ in fill],
+            frame=np.array([i for i, *_ in fill], np.int64),
+        )
+        confirmed = [t for t in kept if t.confirmed]
+        return Detections(
+            _int_boxes([t.box for t in confirmed]),
+            score=[t.score for t in confirmed],
+            track_id=np.array([t.track_id for t in confirmed], np.int64),
+            frame=index,
+        )

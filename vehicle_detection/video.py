@@ -80,7 +80,7 @@ import numpy as np
 from ._files import atomic_output, check_output_path
 from .errors import InputError, OutputError
 
-__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS", "process_video", "annotate_frame"]
+__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS", "process_video"]
 
 X264_PRESETS = (
     "ultrafast",
@@ -955,14 +955,6 @@ class VideoWriter:
 # --- detection over a video --------------------------------------------------------------------
 
 
-def annotate_frame(frame: np.ndarray, boxes: np.ndarray, track_ids=None) -> np.ndarray:
-    """A copy of an RGB frame with each vehicle's box (and track id) drawn on it."""
-    from .boxes import draw_boxes
-
-    labels = None if track_ids is None else [f"car {int(t)}" for t in track_ids]
-    return draw_boxes(frame, boxes, color=(0, 255, 0), thickness=4, labels=labels)
-
-
 def process_video(
     path: str | os.PathLike,
     output: str | os.PathLike | None = None,
@@ -1004,14 +996,16 @@ def process_video(
 
     Returns
     -------
-    BoxTable
-        Every reported box, frame by frame (0-based decoded frame index).
+    Detections
+        Every reported box, frame by frame (``frame``: 0-based decoded frame index), tracked.
     """
     import contextlib
     from contextlib import ExitStack
 
-    from .boxes import BoxTable, write_boxes_csv
+    from .detections import Detections
     from .detector import Detector
+    from .drawing import draw_detections
+    from .tables import write_boxes_csv
 
     path = Path(path)
     detector = detector or Detector()
@@ -1040,15 +1034,13 @@ def process_video(
 
                 bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
             source = frames if max_frames is None else itertools.islice(frames, max_frames)
-            for frame, det in detector.track_frames(source, tracker):
-                detections.append(det)
+            for frame, found in detector.track_frames(source, tracker):
+                detections.append(found)
                 if writer is not None:
-                    writer.write(annotate_frame(frame, det.boxes, det.track_ids))
+                    writer.write(draw_detections(frame, found))
                 if bar is not None:
                     bar.update()
-            table = BoxTable.from_rows(
-                (d.index, box, tid, score) for d in detections for box, tid, score in zip(d.boxes, d.track_ids, d.scores)
-            )
+            table = Detections.concatenate(detections)
             if boxes_csv is not None:
                 # Written before the video is renamed into place: once the video exists under
                 # its final name, the CSV is complete too.

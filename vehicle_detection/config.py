@@ -1,0 +1,74 @@
+"""The settings a detector runs with, saved in the model file beside the classifier.
+
+The search threshold, the heat thresholds and the tracker's settings are tuned to one model's
+margin scale, so they travel with it: a model file carries its
+:class:`~vehicle_detection.features.FeatureConfig` (how features are computed) and a
+:class:`DetectorConfig` (where to search, and how windows become tracked vehicles).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from .search import SearchPlan
+from .tracker import TrackerConfig
+
+__all__ = ["DetectorConfig"]
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """How a :class:`~vehicle_detection.detector.Detector` turns a model's margins into vehicles.
+
+    Parameters
+    ----------
+    plan : SearchPlan
+        Where to search, at which window sizes, and the margin a window needs.
+    tracker : TrackerConfig
+        Heat, blob and track settings. Its heat and blob settings (``cell``, ``score_gain``,
+        ``min_size``, ``aspect_range``, ``peak_fraction``, ``split_size``) apply to single
+        images too.
+    image_threshold : float
+        Heat a single image's blob must exceed (videos use the tracker's integrated threshold).
+    """
+
+    plan: SearchPlan = field(default_factory=SearchPlan)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    image_threshold: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.plan, SearchPlan):
+            raise ValueError(f"DetectorConfig.plan must be a SearchPlan; got {type(self.plan).__name__}")
+        if not isinstance(self.tracker, TrackerConfig):
+            raise ValueError(f"DetectorConfig.tracker must be a TrackerConfig; got {type(self.tracker).__name__}")
+        t = self.image_threshold
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
+            raise ValueError(f"DetectorConfig.image_threshold must be a finite number >= 0; got {t!r}")
+        object.__setattr__(self, "image_threshold", float(t))
+
+    def replace(self, **changes: Any) -> DetectorConfig:
+        """A copy with some fields replaced."""
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """Plain JSON data."""
+        return {"plan": self.plan.to_dict(), "tracker": self.tracker.to_dict(), "image_threshold": self.image_threshold}
+
+    @classmethod
+    def from_dict(cls, d: Any) -> DetectorConfig:
+        """The inverse of :meth:`to_dict`.
+
+        Raises
+        ------
+        ValueError
+            If a key is missing or unknown, or a value is out of range.
+        """
+        if not isinstance(d, dict) or set(d) != {"plan", "tracker", "image_threshold"}:
+            raise ValueError("expected an object with exactly 'plan', 'tracker' and 'image_threshold'")
+        return cls(
+            plan=SearchPlan.from_dict(d["plan"]),
+            tracker=TrackerConfig.from_dict(d["tracker"]),
+            image_threshold=d["image_threshold"],
+        )
