@@ -59,3 +59,28 @@ def test_frames():
     from vehicle_detection.images import read_image
 
     return [read_image(p) for p in sorted((REPO / "test_images").glob("test*.jpg"))]
+
+
+@pytest.fixture(scope="session")
+def default_model():
+    """The embedded model the package ships (no training data needed)."""
+    from vehicle_detection.classifier import load_default_model
+
+    return load_default_model()
+
+
+@pytest.fixture(scope="session")
+def shipped_patches(test_frames):
+    """60 RGB 64x64 patches cut from the shipped test images at random places and sizes: cars,
+    road, trees and sky, as the search sees them (resized with INTER_AREA)."""
+    import cv2
+
+    rng = np.random.default_rng(7)
+    out = []
+    for k in range(60):
+        frame = test_frames[k % len(test_frames)]
+        side = int(rng.integers(48, 200))
+        y = int(rng.integers(0, frame.shape[0] - side))
+        x = int(rng.integers(0, frame.shape[1] - side))
+        out.append(cv2.resize(frame[y : y + side, x : x + side], (64, 64), interpolation=cv2.INTER_AREA))
+    return np.stack(out)

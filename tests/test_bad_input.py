@@ -39,13 +39,15 @@ from PIL import Image
 
 from vehicle_detection import __version__
 from vehicle_detection._files import PARTIAL_SUFFIX, atomic_output, check_output_path
-from vehicle_detection.boxes import BOXES_CSV_HEADER, read_boxes_table
+from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv
 from vehicle_detection.classifier import VehicleClassifier, _digest, default_model_path
 from vehicle_detection.errors import DownloadError, InputError, ModelError, OutputError
 from vehicle_detection.evaluate import Annotations, FrameLabels, evaluate_detections
 from vehicle_detection.features import FEATURE_FORMAT, FeatureConfig, extract_features
 from vehicle_detection.heatmap import add_heat, heat_to_boxes, label_heat
 from vehicle_detection.images import as_rgb_uint8, decode_image, read_image, write_image
+from vehicle_detection.config import DetectorConfig
+from vehicle_detection.detections import Detections
 from vehicle_detection.tracker import Tracker, TrackerConfig
 from vehicle_detection.video import probe_video, process_video, read_frames
 
@@ -302,21 +304,21 @@ def fast_probe():
     from vehicle_detection.detector import Detector
     from vehicle_detection.search import SearchPlan, SearchScale
 
-    def relabel(frame, det):
+    def relabel(frame, index):
         box = np.array([[0, 0, content_code(frame) + 1, 1]], np.int64)
-        return dataclasses.replace(det, boxes=box, track_ids=np.array([7]), scores=np.array([0.5]))
+        return Detections(box, score=[0.5], track_id=[7], frame=index)
 
     class FastProbe(Detector):
         def step(self, frame, tracker):
-            return relabel(frame, super().step(frame, tracker))
+            super().step(frame, tracker)
+            return relabel(frame, tracker.state.frame_index - 1)
 
-        if hasattr(Detector, "track_frames"):
+        def track_frames(self, frames, tracker=None, **kwargs):
+            for index, (frame, _) in enumerate(super().track_frames(frames, tracker, **kwargs)):
+                yield frame, relabel(frame, index)
 
-            def track_frames(self, frames, tracker=None, **kwargs):
-                for frame, det in super().track_frames(frames, tracker, **kwargs):
-                    yield frame, relabel(frame, det)
-
-    return FastProbe(plan=SearchPlan(scales=(SearchScale(1.0, 400, 464, x_stop=192),)))
+    plan = SearchPlan(scales=(SearchScale(1.0, 400, 464, x_stop=192),))
+    return FastProbe(config=DetectorConfig(plan=plan))
 
 
 def content_code(frame: np.ndarray) -> int:
@@ -326,10 +328,10 @@ def content_code(frame: np.ndarray) -> int:
 def check_frame_indices(video: Path, csv: Path) -> list[np.ndarray]:
     """Row k of the CSV is decoded frame k: its index and the pixels it was computed from."""
     decoded = list(read_frames(video))
-    table = read_boxes_table(csv)
+    table = read_boxes_csv(csv)
     assert csv.read_text().splitlines()[0] == BOXES_CSV_HEADER
     assert table.frame.tolist() == list(range(len(decoded)))
-    assert (table.boxes[:, 2] - 1).tolist() == [content_code(f) for f in decoded]
+    assert (table.xyxy[:, 2] - 1).tolist() == [content_code(f) for f in decoded]
     return decoded
 
 
@@ -775,13 +777,12 @@ def test_windows_anywhere_give_boxes_inside_the_frame(case, threshold):
 def test_tracker_reports_boxes_inside_the_frame(frames, h, w):
     tracker = Tracker(TrackerConfig(cell=4, threshold=0.5, min_hits=1, min_size=(0, 0), aspect_range=(0.01, 100)))
     for i, (_, windows, _) in enumerate(frames):
-        tracks = tracker.update(windows, None, (h, w, 3))
+        found = tracker.update(Detections(windows, score=np.zeros(len(windows))), (h, w, 3))
         assert tracker.state.frame_index == i + 1
-        ids = [t.track_id for t in tracks]
+        ids = found.track_id.tolist()
         assert ids == sorted(set(ids))
-        for t in tracks:
-            x1, y1, x2, y2 = t.int_box()
-            assert 0 <= x1 < x2 <= w and 0 <= y1 < y2 <= h, (t.int_box(), (h, w))
+        for x1, y1, x2, y2 in found.xyxy.tolist():
+            assert 0 <= x1 < x2 <= w and 0 <= y1 < y2 <= h, ((x1, y1, x2, y2), (h, w))
 
 
 @st.composite

@@ -56,8 +56,9 @@ def test_folded_equals_scaler_plus_coef(small_model, real_features):
     feats, _, _ = real_features
     x = feats.astype(np.float64)
     ref = ((x - small_model.scaler_mean) / small_model.scaler_scale) @ small_model.coef + small_model.intercept
-    w, b = small_model.folded()
+    w, b = small_model.weights, small_model.bias
     assert w.shape == (small_model.config.n_features,) and isinstance(b, float)
+    assert not w.flags.writeable
     np.testing.assert_allclose(x @ w + b, ref, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(small_model.decision_function(feats), ref, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(small_model.predict(feats), (ref > 0).astype(np.int8))
@@ -193,7 +194,7 @@ def _tamper(kind: str, src: Path, dst: Path) -> Path:
     elif kind == "other_format":
         meta["format"] = "something-else"
     elif kind == "format_version":
-        meta["format_version"] = 2
+        meta["format_version"] = 3
     elif kind == "header_not_json":
         d["meta"] = np.frombuffer(b"{not json", dtype=np.uint8)
         meta = None
@@ -482,3 +483,74 @@ def test_header_edit_is_refused_by_the_checksum(saved_model, tmp_path):
     with pytest.raises(ModelError, match="checksum") as err:
         VehicleClassifier.load(path)
     assert str(path) in str(err.value)
+
+
+# --------------------------------------------------------------------------------------------
+# The detector settings in the model file, old files, hostile files
+# --------------------------------------------------------------------------------------------
+def test_detector_config_round_trips_through_the_file(tmp_path):
+    from vehicle_detection.config import DetectorConfig
+    from vehicle_detection.search import SearchPlan, SearchScale
+    from vehicle_detection.tracker import TrackerConfig
+
+    model = load_default_model()
+    custom = DetectorConfig(
+        plan=SearchPlan(scales=(SearchScale(1.25, 380, 560, x_start=16, step=1),), threshold=0.7),
+        tracker=TrackerConfig(decay=0.5, min_hits=2, min_size=(40, 30)),
+        image_threshold=3.5,
+    )
+    path = model.replace(detector_config=custom).save(tmp_path / "m.npz")
+    assert VehicleClassifier.load(path).detector_config == custom
+    assert _contents(path)[1]["format_version"] == 2
+
+
+def test_version_1_files_are_migrated_with_the_settings_of_library_0_1(tmp_path):
+    from vehicle_detection.config import DetectorConfig
+
+    src = load_default_model().save(tmp_path / "v2.npz")
+    d, meta = _contents(src)
+    del meta["detector_config"]
+    meta.update(format_version=1, library_version="0.1.0")
+    meta["sha256"] = _digest({k: d[k] for k in ("scaler_mean", "scaler_scale", "coef", "intercept")}, meta)
+    old = VehicleClassifier.load(_write(tmp_path / "v1.npz", d, meta))
+    # Library 0.1 ran every model with what were then the defaults; they are written out in
+    # the migration, independent of today's defaults.
+    cfg = old.detector_config
+    assert isinstance(cfg, DetectorConfig)
+    assert [(s.scale, s.y_start, s.y_stop, s.step) for s in cfg.plan.scales] == [
+        (1.0, 400, 496, 2), (1.5, 400, 544, 1), (2.0, 400, 592, 1), (3.0, 400, 688, 1)]
+    assert (cfg.plan.threshold, cfg.tracker.threshold, cfg.tracker.decay, cfg.image_threshold) == (0.3, 6.0, 0.6, 2.0)
+    np.testing.assert_array_equal(old.coef, load_default_model().coef)
+
+
+def test_oversized_members_are_refused_before_reading(tmp_path):
+    import zipfile
+
+    src = load_default_model().save(tmp_path / "m.npz")
+    d, meta = _contents(src)
+    meta["padding"] = " " * (2 << 20)  # a header of 2 MB, 1 MB allowed
+    bomb = tmp_path / "bomb.npz"
+    with zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, arr in {**d, "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}.items():
+            with zf.open(f"{name}.npy", "w") as f:
+                np.lib.format.write_array(f, arr)
+    assert bomb.stat().st_size < 300_000  # small on disk, large unpacked
+    with pytest.raises(ModelError, match="meta is .* bytes unpacked"):
+        VehicleClassifier.load(bomb)
+
+
+def test_deeply_nested_header_is_a_model_error(tmp_path):
+    src = load_default_model().save(tmp_path / "m.npz")
+    d, _ = _contents(src)
+    d["meta"] = np.frombuffer(("[" * 100_000 + "]" * 100_000).encode(), np.uint8)
+    with pytest.raises(ModelError, match="nested too deeply"):
+        VehicleClassifier.load(_write(tmp_path / "deep.npz", d))
+
+
+def test_models_are_immutable():
+    model = load_default_model()
+    for name in ("scaler_mean", "scaler_scale", "coef", "weights"):
+        with pytest.raises(ValueError, match="read-only"):
+            getattr(model, name)[0] = 0.0
+    with pytest.raises(AttributeError):
+        model.intercept = 1.0

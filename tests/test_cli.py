@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vehicle_detection.boxes import BOXES_CSV_HEADER, read_boxes_table
+from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv
 from vehicle_detection.cli import main
 from vehicle_detection.classifier import default_model_path
 from vehicle_detection.images import read_image
@@ -280,12 +280,12 @@ def _api_detect(path: Path):
     from vehicle_detection.detector import Detector
 
     det = Detector().detect_image(read_image(path))
-    return [(b.tolist(), round(float(s), 4)) for b, s in zip(det.boxes, det.scores)]
+    return [(b.tolist(), round(float(s), 4)) for b, s in zip(det.xyxy, det.score)]
 
 
 def _table_rows(table, frame):
     keep = table.frame == frame
-    return [(b.tolist(), round(float(s), 4)) for b, s in zip(table.boxes[keep], table.score[keep])]
+    return [(b.tolist(), round(float(s), 4)) for b, s in zip(table.xyxy[keep], table.score[keep])]
 
 
 @needs_media
@@ -298,13 +298,13 @@ def test_detect_image_writes_next_to_the_input(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([img.name, out.name, boxes.name])
     assert sha256(img) == before
     assert read_image(out).shape == read_image(img).shape
-    table = read_boxes_table(boxes)
+    table = read_boxes_csv(boxes)
     assert len(csv_rows(boxes)) == len(table)
-    assert set(table.frame.tolist()) <= {0} and set(table.track_id.tolist()) <= {-1}
+    assert set(table.frame.tolist()) <= {0} and table.track_id is None
     assert _table_rows(table, 0) == _api_detect(img)
     assert f"{len(table)} vehicles" in capsys.readouterr().out
     drawn = read_image(out).astype(int)
-    for x1, y1, x2, _ in table.boxes:  # the top edge of each box is drawn green
+    for x1, y1, x2, _ in table.xyxy:  # the top edge of each box is drawn green
         r, g, b = drawn[y1 + 1, (x1 + x2) // 2]
         assert g > 180 and r < 100 and b < 100
 
@@ -322,7 +322,7 @@ def test_detect_folder_frames_are_sorted_positions(tmp_path):
     out = tmp_path / "shots_detected"
     assert sorted(p.name for p in out.iterdir()) == ["a_grey.png", "b_street.jpg", "boxes.csv", "c_street.JPG"]
     assert {p.name: sha256(p) for p in folder.iterdir()} == before
-    table = read_boxes_table(out / "boxes.csv")
+    table = read_boxes_csv(out / "boxes.csv")
     assert set(table.frame.tolist()) <= {0, 1, 2}
     for i, name in enumerate(["a_grey.png", "b_street.jpg", "c_street.JPG"]):
         assert _table_rows(table, i) == _api_detect(folder / name), name
@@ -372,7 +372,7 @@ def test_detect_video_outputs(detected_clip):
     assert info.size == probe_video(clip).size
     assert sum(1 for _ in read_frames(out)) == n_decoded == 8
     rows = csv_rows(boxes)
-    table = read_boxes_table(boxes)
+    table = read_boxes_csv(boxes)
     assert len(rows) == len(table) > 0
     assert all(0 <= f < n_decoded for f in table.frame.tolist())
     assert np.all(table.track_id >= 0)
@@ -395,7 +395,7 @@ def test_detect_video_second_run_needs_overwrite(detected_clip):
     out2, boxes2 = clip.parent / "new" / "deeper" / "v.mp4", clip.parent / "other" / "v.csv"
     assert main(["detect", str(clip), "--no-progress", "--out", str(out2), "--boxes", str(boxes2)]) == 0
     assert probe_video(out2).n_frames == 8
-    assert read_boxes_table(boxes2).frame.tolist() == read_boxes_table(boxes).frame.tolist()
+    assert read_boxes_csv(boxes2).frame.tolist() == read_boxes_csv(boxes).frame.tolist()
 
 
 def test_readme_documents_the_exit_codes():
@@ -445,10 +445,9 @@ def test_train_json_on_a_small_data_folder(tmp_path, capsys):
 
 def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
     clip, _ = detected_clip
-    table = read_boxes_table(clip.with_name("clip8_boxes.csv"))
-    found = table.by_frame()
-    assert len(found.get(5, [])) > 0  # both cars of the clip are tracked by frame 5
-    cars = {f: [b.tolist() for b in found.get(f, [])] for f in (0, 5)}
+    table = read_boxes_csv(clip.with_name("clip8_boxes.csv"))
+    assert len(table.at_frame(5)) > 0  # both cars of the clip are tracked by frame 5
+    cars = {f: table.at_frame(f).xyxy.tolist() for f in (0, 5)}
     cars[0].append([0, 0, 40, 40])  # a car nobody can find: one miss
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"video": clip.name, "frames": {str(f): {"cars": c} for f, c in cars.items()}}))

@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.evaluate: IoU, matching, annotation loading and scores.
+"""Tests of vehicle_detection.evaluate: matching, annotation loading and scores.
 
 Expected values are worked out by hand in the comments beside them.
 """
@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-from itertools import product
 from pathlib import Path
 
 import numpy as np
@@ -15,12 +14,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from vehicle_detection.detections import Detections
 from vehicle_detection.errors import InputError
+from vehicle_detection.geometry import box_iou
 from vehicle_detection.evaluate import (
     Annotations,
     FrameLabels,
     Scores,
-    box_iou,
     evaluate_detections,
     load_annotations,
     match_frame,
@@ -39,67 +39,6 @@ needs_clip_a = pytest.mark.skipif(
     not CLIP_A.is_file(),
     reason=f"shared data not found at {CLIP_A} (set VEHICLE_DETECTION_DATA to the shared data folder)",
 )
-
-
-# --------------------------------------------------------------------------------------------
-# box_iou
-# --------------------------------------------------------------------------------------------
-class TestBoxIou:
-    def test_known_values(self):
-        a = [[0, 0, 10, 10]]
-        b = [
-            [0, 0, 10, 10],  # identical: 1
-            [20, 20, 30, 30],  # disjoint: 0
-            [10, 0, 20, 10],  # shares the edge x=10, but x2 is exclusive: no common pixel, 0
-            [5, 0, 15, 10],  # half of each: inter 5*10=50, union 100+100-50=150 -> 1/3
-            [0, 0, 5, 10],  # the left half of a: inter 50, union 100 -> 1/2
-            [5, 5, 15, 15],  # a quarter of each: inter 25, union 175 -> 1/7
-            [-10, -10, 20, 20],  # a inside a 30x30 box: 100/900 -> 1/9
-        ]
-        expected = [[1.0, 0.0, 0.0, 1 / 3, 1 / 2, 1 / 7, 1 / 9]]
-        np.testing.assert_allclose(box_iou(a, b), expected, rtol=1e-12)
-
-    def test_one_pixel_boxes(self):
-        # [0,0,1,1] is the single pixel (0,0); [0,0,2,2] covers 4 pixels -> 1/4.
-        np.testing.assert_allclose(box_iou([[0, 0, 1, 1]], [[0, 0, 2, 2], [1, 1, 2, 2]]), [[0.25, 0.0]])
-
-    def test_shape_and_dtype(self):
-        a = np.array([[0, 0, 4, 4], [2, 2, 6, 6]], dtype=np.int32)
-        b = np.array([[0, 0, 4, 4], [2, 2, 6, 6], [100, 100, 101, 101]], dtype=np.float32)
-        iou = box_iou(a, b)
-        assert iou.shape == (2, 3) and iou.dtype == np.float64
-        # a[0] vs a[1]: inter 2*2=4, union 16+16-4=28 -> 1/7
-        np.testing.assert_allclose(iou, [[1, 1 / 7, 0], [1 / 7, 1, 0]], rtol=1e-12)
-
-    def test_float_coordinates(self):
-        # [0,0,1,1] vs [0.5,0,1.5,1]: inter 0.5, union 1.5 -> 1/3
-        np.testing.assert_allclose(box_iou([[0.0, 0.0, 1.0, 1.0]], [[0.5, 0.0, 1.5, 1.0]]), [[1 / 3]])
-
-    @pytest.mark.parametrize(
-        "a, b, shape",
-        [([], [[0, 0, 1, 1]], (0, 1)), (np.zeros((2, 4)) + [0, 0, 1, 1], [], (2, 0)), ([], [], (0, 0))],
-    )
-    def test_empty_inputs(self, a, b, shape):
-        assert box_iou(a, b).shape == shape
-
-    def test_zero_area_boxes_give_zero_not_nan(self):
-        iou = box_iou([[3, 3, 3, 3]], [[3, 3, 3, 3], [0, 0, 10, 10]])
-        np.testing.assert_array_equal(iou, [[0.0, 0.0]])
-
-    @pytest.mark.parametrize(
-        "bad",
-        [
-            [[0, 0, 1]],  # 3 coordinates
-            [0, 0, 1, 1],  # 1-D
-            [[0, 0, 1, np.nan]],
-            [[5, 0, 4, 1]],  # x2 < x1
-            [[0, 5, 1, 4]],  # y2 < y1
-            [["a", "b", "c", "d"]],
-        ],
-    )
-    def test_rejects_malformed_boxes(self, bad):
-        with pytest.raises(ValueError):
-            box_iou(bad, [[0, 0, 1, 1]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -452,30 +391,6 @@ def box_sets(draw, max_boxes=6, max_coord=60, max_size=40):
         y1 = draw(st.integers(0, max_coord))
         out.append([x1, y1, x1 + draw(st.integers(1, max_size)), y1 + draw(st.integers(1, max_size))])
     return np.array(out, dtype=np.int64).reshape(-1, 4)
-
-
-@settings(deadline=None)
-@given(box_sets(), box_sets())
-def test_iou_symmetric_bounded_and_one_on_diagonal(a, b):
-    ab, ba = box_iou(a, b), box_iou(b, a)
-    np.testing.assert_allclose(ab, ba.T, rtol=1e-12, atol=0)
-    assert np.all((ab >= 0) & (ab <= 1))
-    np.testing.assert_allclose(np.diag(box_iou(a, a)), 1.0)
-
-
-@settings(deadline=None, max_examples=60)
-@given(box_sets(max_boxes=3, max_coord=12, max_size=8), box_sets(max_boxes=3, max_coord=12, max_size=8))
-def test_iou_matches_pixel_count(a, b):
-    # Rasterise each box as the pixels [x1, x2) x [y1, y2) and count.
-    def mask(box):
-        m = np.zeros((24, 24), dtype=bool)
-        m[box[1] : box[3], box[0] : box[2]] = True
-        return m
-
-    iou = box_iou(a, b)
-    for i, j in product(range(len(a)), range(len(b))):
-        ma, mb = mask(a[i]), mask(b[j])
-        assert iou[i, j] == pytest.approx((ma & mb).sum() / (ma | mb).sum())
 
 
 def _best_matching(iou: np.ndarray, threshold: float) -> tuple[int, float]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -169,16 +170,26 @@ def uint8_images(draw, min_side=1, max_side=24, max_n=3):
 
 
 # --------------------------------------------------------------------------------------------
-# Real patches (dataset fixture)
+# Real patches: cut from the shipped test images (no training data needed)
 # --------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def real_patches(dataset):
-    """50 patches, half vehicles, from all source folders."""
-    rng = np.random.default_rng(42)
-    idx = np.concatenate(
-        [rng.choice(np.flatnonzero(dataset.labels == 1), 25, replace=False), rng.choice(np.flatnonzero(dataset.labels == 0), 25, replace=False)]
-    )
-    return np.ascontiguousarray(dataset.images[idx])
+def real_patches(shipped_patches):
+    return shipped_patches
+
+
+REFERENCE = Path(__file__).parent / "data" / "hog_reference.npz"
+
+
+def test_hog_equals_the_stored_reference():
+    """HOG of shipped patches against arrays stored once (tests/data/make_hog_reference.py):
+    scikit-image's HOG for unsigned orientations, the numpy reference above for signed ones."""
+    ref = np.load(REFERENCE, allow_pickle=False)
+    patches = ref["patches"]
+    assert patches.shape == (8, 64, 64, 3)
+    for name in ("unsigned", "signed"):
+        cfg = FeatureConfig.from_dict(json.loads(str(ref[f"{name}_config"])))
+        got = hog_features(convert_color(patches, cfg.color_space), cfg)
+        np.testing.assert_allclose(got, ref[name], rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("cfg", CONFIGS, ids=CONFIG_IDS)
@@ -658,9 +669,9 @@ def test_numpy_reference_equals_skimage_unsigned(img, orientations):
 
 
 @pytest.mark.parametrize("orientations", [8, 16, 22])
-def test_signed_hog_matches_reference_and_differs_from_unsigned(dataset, orientations):
+def test_signed_hog_matches_reference_and_differs_from_unsigned(real_patches, orientations):
     cfg = FeatureConfig(orientations=orientations, signed=True, hog_sqrt=False)
-    conv = convert_color(dataset.images[::700][:25], cfg.color_space)
+    conv = convert_color(real_patches[:25], cfg.color_space)
     got = hog_features(conv, cfg)
     np.testing.assert_allclose(got, ref_hog(conv, cfg), atol=1e-5)
     unsigned = hog_features(conv, FeatureConfig(orientations=orientations, signed=False, hog_sqrt=False))

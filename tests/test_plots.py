@@ -12,11 +12,12 @@ from matplotlib import pyplot as plt  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from vehicle_detection import plots  # noqa: E402
-from vehicle_detection.boxes import BoxTable  # noqa: E402
-from vehicle_detection.detector import FrameDetection, ImageDetection  # noqa: E402
+from vehicle_detection.config import DetectorConfig  # noqa: E402
+from vehicle_detection.detections import Detections  # noqa: E402
+from vehicle_detection.detector import Detector  # noqa: E402
 from vehicle_detection.evaluate import Annotations, FrameLabels  # noqa: E402
 from vehicle_detection.features import COLOR_SPACES, FeatureConfig  # noqa: E402
-from vehicle_detection.search import SearchPlan, SearchScale, Windows  # noqa: E402
+from vehicle_detection.search import SearchPlan, SearchScale  # noqa: E402
 from vehicle_detection.tracker import TrackerConfig  # noqa: E402
 
 RNG = np.random.default_rng(0)
@@ -37,20 +38,17 @@ def frame(h=180, w=320):
     return RNG.integers(0, 256, (h, w, 3), dtype=np.uint8)
 
 
-class FakeDetector:
-    """What the figure helpers read from a Detector, without loading a model."""
+PLAN = SearchPlan(scales=(SearchScale(1.0, 40, 120), SearchScale(2.0, 40, 180, step=2)), reference_height=180)
 
-    class model:
-        config = CFG
 
-    plan = SearchPlan(scales=(SearchScale(1.0, 40, 120), SearchScale(2.0, 40, 180, step=2)), reference_height=180)
-    tracker = TrackerConfig(threshold=1.0, cell=8)
-    image_threshold = 1.0
+def small_detector():
+    """A real detector with a small plan and low thresholds (its windows come from windows())."""
+    return Detector(config=DetectorConfig(plan=PLAN, tracker=TrackerConfig(threshold=1.0, cell=8), image_threshold=1.0))
 
 
 def windows(n=3):
     boxes = np.array([[10 + 20 * i, 50, 74 + 20 * i, 114] for i in range(n)], np.int64)
-    return Windows(boxes, np.linspace(0.5, 2.0, n), np.arange(n) % 2)
+    return Detections(boxes, score=np.linspace(0.5, 2.0, n), data={"scale_index": np.arange(n) % 2})
 
 
 def heat(h=180, w=320, cell=8):
@@ -164,63 +162,53 @@ def test_classifier_figures():
 
 
 def test_window_grid_figure():
-    det = FakeDetector()
-    fig = plots.window_grid_figure(frame(), det.plan, CFG, rows=(20, 180))
+    fig = plots.window_grid_figure(frame(), PLAN, CFG, rows=(20, 180))
     assert len(fig.axes) == 2
     assert fig.axes[0].get_ylim() == (180, 20)
     assert "scale 2" in fig.axes[1].get_title()
 
 
 def test_detection_stages_and_boxes_grid(tmp_path):
-    det = FakeDetector()
+    det = small_detector()
     f = frame()
-    result = ImageDetection(np.array([[16, 48, 96, 112]]), np.array([3.0]), windows(), heat())
-    empty = ImageDetection(np.zeros((0, 4), np.int64), np.zeros(0), windows(0), np.zeros_like(heat()))
-    fig = plots.detection_stages_figure([("a", f, result), ("b", f, empty)], det, rows=(40, 180))
+    result = Detections([[16, 48, 96, 112]], score=[3.0])
+    fig = plots.detection_stages_figure([("a", f, windows(), result), ("b", f, windows(0), Detections.empty())], det, rows=(40, 180))
     assert len(fig.axes) == 8
+    assert fig.axes[0].texts[-1].get_text() == "3 windows"
     png_ok(plots.save_figure(fig, tmp_path / "stages.png"))
-    fig = plots.boxes_grid_figure([("a", f, result.boxes), ("b", f, empty.boxes)], ncols=3)
+    fig = plots.boxes_grid_figure([("a", f, result.xyxy), ("b", f, np.zeros((0, 4)))], ncols=3)
     assert [ax.get_title() for ax in fig.axes[:2]] == ["a: 1 vehicles", "b: 0 vehicles"]
 
 
 def test_video_figures(tmp_path):
-    det = FakeDetector()
+    det = small_detector()
     records = [
-        (frame(), FrameDetection(i, np.array([[16, 48, 96, 112]]), np.array([0]), np.array([5.0]), windows()), heat() * (i + 1))
+        (frame(), i, windows(), Detections([[16, 48, 96, 112]], score=[5.0], track_id=[0], frame=i), heat() * (i + 1))
         for i in range(2)
     ]
     fig = plots.frame_sequence_figure(records, det, rows=(40, 180))
     assert len(fig.axes) == 6
-    table = BoxTable.from_rows([(0, [1, 2, 30, 40], 0, 1.0), (1, [1, 2, 30, 40], 0, 1.0), (1, [50, 2, 90, 40], 3, 1.0)])
+    table = Detections([[1, 2, 30, 40], [1, 2, 30, 40], [50, 2, 90, 40]], track_id=[0, 0, 3], frame=[0, 1, 1])
     fig = plots.tracks_timeline_figure(table, 4)
     assert [t.get_text() for t in fig.axes[0].get_yticklabels()] == ["car 0", "car 3"]
-    plots.tracks_timeline_figure(BoxTable.empty(), 4)
+    plots.tracks_timeline_figure(Detections.empty(tracked=True), 4)
     ann = Annotations(None, {0: FrameLabels(cars=[[16, 48, 96, 112], [200, 50, 260, 100]], ignore=[[0, 0, 10, 10]]), 5: FrameLabels(cars=[])})
-    fig = plots.labelled_frames_figure({0: frame(), 5: frame()}, ann, {0: np.array([[16, 48, 96, 112], [120, 60, 150, 90]])})
+    fig = plots.labelled_frames_figure({0: frame(), 5: frame()}, ann, Detections([[16, 48, 96, 112], [120, 60, 150, 90]]))
     assert fig.axes[0].get_title() == "frame 0: TP 1, FP 1, FN 1"
     assert fig.axes[1].get_title() == "frame 5: TP 0, FP 0, FN 0"
     png_ok(plots.save_figure(fig, tmp_path / "labelled.png"))
 
 
 def test_track_frames_keeps_the_requested_window():
-    class Det:
-        def __init__(self):
-            self.tracker = TrackerConfig()
-
-        def new_tracker(self):
-            from vehicle_detection.tracker import Tracker
-
-            return Tracker(self.tracker)
-
-        def step(self, f, tracker):
-            index = tracker.state.frame_index
-            tracker.update([[8, 8, 72, 72]], [1.0], f.shape)
-            return FrameDetection(index, np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros(0), windows(0))
+    class Det(Detector):
+        def windows(self, f):
+            return Detections([[8, 8, 72, 72]], score=[1.0])
 
     frames = (frame() for _ in range(10))
-    records = plots.track_frames(Det(), frames, first=3, count=2)
-    assert [r[1].index for r in records] == [3, 4]
-    assert records[0][2] is not records[1][2] and records[1][2].max() > records[0][2].max()
+    records = plots.track_frames(Det(config=small_detector().config), frames, first=3, count=2)
+    assert [r[1] for r in records] == [3, 4]
+    assert all(len(r[2]) == 1 for r in records)
+    assert records[0][4] is not records[1][4] and records[1][4].max() > records[0][4].max()
 
 
 def test_showcase_configs_end_with_the_model_config():

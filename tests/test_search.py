@@ -8,7 +8,6 @@ import pytest
 from vehicle_detection.search import (
     SearchPlan,
     SearchScale,
-    Windows,
     classify_windows,
     plan_windows,
     search,
@@ -49,11 +48,11 @@ def test_plan_round_trip():
         SearchPlan(scales=())
 
 
-def test_plan_windows_match_search_boxes(small_model):
+def test_plan_windows_match_search_boxes(default_model):
     frame = np.zeros((720, 1280, 3), np.uint8)
-    per_scale = plan_windows(frame.shape, SearchPlan(), small_model.config)
-    wins = search(frame, small_model, all_windows=True)
-    assert np.array_equal(np.concatenate(per_scale), wins.boxes)
+    per_scale = plan_windows(frame.shape, SearchPlan(), default_model.config)
+    wins = search(frame, default_model, all_windows=True)
+    assert np.array_equal(np.concatenate(per_scale), wins.xyxy)
     for k, s in enumerate(SearchPlan().scales):
         b = per_scale[k]
         assert len(b) > 0
@@ -64,65 +63,80 @@ def test_plan_windows_match_search_boxes(small_model):
 
 
 @pytest.mark.parametrize("index", [0, 3, 5])
-def test_fast_and_plain_paths_agree_on_real_frames(small_model, test_frames, index):
+def test_fast_and_plain_paths_agree_on_real_frames(default_model, test_frames, index):
     frame = test_frames[index]
-    fast = search(frame, small_model, all_windows=True)
-    plain = search_plain(frame, small_model)
+    fast = search(frame, default_model, all_windows=True)
+    plain = search_plain(frame, default_model)
     assert len(fast) == len(plain) > 1000
-    assert np.array_equal(fast.boxes, plain.boxes)
-    assert np.array_equal(fast.scale_index, plain.scale_index)
+    assert np.array_equal(fast.xyxy, plain.xyxy)
+    assert np.array_equal(fast.data["scale_index"], plain.data["scale_index"])
     # Same margins to rounding error, hence the same decision on every window not on the fence.
-    np.testing.assert_allclose(fast.scores, plain.scores, rtol=0, atol=1e-6)
-    clear = np.abs(plain.scores) > 1e-6
-    assert np.array_equal(fast.scores[clear] > 0, plain.scores[clear] > 0)
-    assert (plain.scores > 0).any() and (plain.scores < 0).any()
+    np.testing.assert_allclose(fast.score, plain.score, rtol=0, atol=1e-6)
+    clear = np.abs(plain.score) > 1e-6
+    assert np.array_equal(fast.score[clear] > 0, plain.score[clear] > 0)
+    assert (plain.score > 0).any() and (plain.score < 0).any()
 
 
-def test_search_threshold_filters(small_model, test_frames):
+def test_search_threshold_filters(default_model, test_frames):
     frame = test_frames[0]
-    all_w = search(frame, small_model, all_windows=True)
-    hot = search(frame, small_model, SearchPlan(threshold=0.5))
-    assert np.array_equal(np.sort(hot.scores), np.sort(all_w.scores[all_w.scores > 0.5]))
+    all_w = search(frame, default_model, all_windows=True)
+    hot = search(frame, default_model, SearchPlan(threshold=0.5))
+    assert np.array_equal(np.sort(hot.score), np.sort(all_w.score[all_w.score > 0.5]))
 
 
-def test_classify_windows_resizes_to_patch(small_model, test_frames):
+def test_classify_windows_resizes_to_patch(default_model, test_frames):
     frame = test_frames[0]
     wins = np.array([[800, 400, 960, 560], [0, 0, 64, 64]])
-    scores = classify_windows(frame, wins, small_model)
+    scores = classify_windows(frame, wins, default_model)
     import cv2
 
     patch = cv2.resize(frame[400:560, 800:960], (64, 64), interpolation=cv2.INTER_AREA)
     assert scores.shape == (2,)
-    assert scores[0] == pytest.approx(small_model.decision_images(patch[None])[0])
-    assert scores[1] == pytest.approx(small_model.decision_images(frame[None, 0:64, 0:64])[0])
+    assert scores[0] == pytest.approx(default_model.decision_images(patch[None])[0])
+    assert scores[1] == pytest.approx(default_model.decision_images(frame[None, 0:64, 0:64])[0])
 
 
-def test_other_frame_sizes_map_back(small_model, test_frames):
+def test_other_frame_sizes_map_back(default_model, test_frames):
     """A half-size frame is searched at the reference height; boxes come back in its pixels."""
     import cv2
 
     frame = test_frames[0]
     small = cv2.resize(frame, (640, 360), interpolation=cv2.INTER_AREA)
-    wins = search(small, small_model, all_windows=True)
-    assert wins.boxes[:, 2].max() <= 640 and wins.boxes[:, 3].max() <= 360
-    big = search(frame, small_model, all_windows=True)
+    wins = search(small, default_model, all_windows=True)
+    assert wins.xyxy[:, 2].max() <= 640 and wins.xyxy[:, 3].max() <= 360
+    big = search(frame, default_model, all_windows=True)
     assert len(wins) == len(big)
-    np.testing.assert_allclose(wins.boxes * 2, big.boxes, atol=2)
+    np.testing.assert_allclose(wins.xyxy * 2, big.xyxy, atol=2)
 
 
-def test_band_outside_frame_is_skipped(small_model):
+def test_band_outside_frame_is_skipped(default_model):
     plan = SearchPlan(scales=(SearchScale(1.0, 400, 496), SearchScale(1.0, 2000, 2100)))
-    wins = search(np.zeros((720, 1280, 3), np.uint8), small_model, plan, all_windows=True)
-    assert len(wins) > 0 and np.all(wins.scale_index == 0)
+    wins = search(np.zeros((720, 1280, 3), np.uint8), default_model, plan, all_windows=True)
+    assert len(wins) > 0 and np.all(wins.data["scale_index"] == 0)
 
 
-def test_search_refuses_float_frames(small_model):
+def test_search_refuses_float_frames(default_model):
     from vehicle_detection.errors import InputError
 
     with pytest.raises(InputError, match="0-1 versus 0-255"):
-        search(np.zeros((720, 1280, 3), np.float32), small_model)
+        search(np.zeros((720, 1280, 3), np.float32), default_model)
 
 
-def test_windows_concatenate_empty():
-    w = Windows.concatenate([])
-    assert len(w) == 0 and w.boxes.shape == (0, 4)
+def test_a_changed_model_changes_the_scores(default_model, test_frames):
+    """Models are immutable; a changed copy is a new model, and the fast path follows it."""
+    frame = test_frames[0]
+    with pytest.raises(ValueError, match="read-only"):
+        default_model.coef[0] = 1.0
+    before = search(frame, default_model, all_windows=True)
+    shifted = default_model.replace(intercept=default_model.intercept + 1.0)
+    after = search(frame, shifted, all_windows=True)
+    np.testing.assert_allclose(after.score - before.score, 1.0, atol=1e-9)
+    np.testing.assert_allclose(search_plain(frame, shifted).score, after.score, atol=1e-6)
+
+
+def test_search_uses_the_models_plan_by_default(default_model, test_frames):
+    plan = SearchPlan(scales=(SearchScale(1.5, 400, 544),), threshold=-100.0)
+    model = default_model.replace(detector_config=default_model.detector_config.replace(plan=plan))
+    wins = search(test_frames[0], model)
+    assert np.all(wins.data["scale_index"] == 0)
+    assert len(wins) == len(search(test_frames[0], model, plan, all_windows=True))

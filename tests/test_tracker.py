@@ -11,7 +11,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from vehicle_detection.evaluate import box_iou
+from vehicle_detection.detections import Detections
+from vehicle_detection.geometry import box_iou
 from vehicle_detection.tracker import Track, Tracker, TrackerConfig, TrackerState
 
 SHAPE = (720, 1280, 3)
@@ -21,6 +22,21 @@ def car_windows(box, offsets=((0, 0), (16, 0), (-16, 0), (0, 8))) -> np.ndarray:
     """Detection windows around a car box: the box and shifted copies."""
     box = np.asarray(box)
     return np.array([box + [dx, dy, dx, dy] for dx, dy in offsets], dtype=np.int64)
+
+
+def update(tr: Tracker, boxes, scores, shape=SHAPE) -> list[Track]:
+    """One frame of windows through :meth:`Tracker.update`; the confirmed live tracks it leaves.
+
+    ``scores`` None means margin 0 for every window (heat 1 each). Checks on the way that the
+    returned Detections are those tracks, rounded to whole pixels.
+    """
+    boxes = np.asarray(boxes, dtype=np.int64).reshape(-1, 4) if np.size(boxes) else np.zeros((0, 4), np.int64)
+    found = tr.update(Detections(boxes, score=np.zeros(len(boxes)) if scores is None else scores), shape)
+    tracks = tr.tracks
+    assert found.track_id.tolist() == [t.track_id for t in tracks]
+    assert found.xyxy.tolist() == [t.int_box().tolist() for t in tracks]
+    assert np.all(found.frame == tr.state.frame_index - 1)
+    return tracks
 
 
 def snapshot(tracks: list[Track]) -> list[tuple]:
@@ -103,11 +119,11 @@ def test_match_moves_box_by_moving_average_and_confirms():
     # blob box is the window itself.
     cfg = TrackerConfig(decay=0.0, threshold=0.5, min_hits=2, smoothing=0.5)
     tr = Tracker(cfg)
-    assert tr.update([[64, 64, 192, 160]], [1.5], SHAPE) == []  # opened, not confirmed
+    assert update(tr, [[64, 64, 192, 160]], [1.5], SHAPE) == []  # opened, not confirmed
     assert len(tr.state.tracks) == 1 and tr.state.tracks[0].hits == 1
     # IoU([64,64,192,160], [80,64,208,160]) = 112/144 >= 0.2 -> matched;
     # box = 0.5 * old + 0.5 * new = [72, 64, 200, 160]; heat 1 + max(-3, 0) = 1 -> score 1.
-    (t,) = tr.update([[80, 64, 208, 160]], [-3.0], SHAPE)
+    (t,) = update(tr, [[80, 64, 208, 160]], [-3.0], SHAPE)
     assert t.track_id == 0 and t.confirmed and t.hits == 2 and t.misses == 0 and t.age == 2
     np.testing.assert_array_equal(t.box, [72, 64, 200, 160])
     assert t.score == 1.0
@@ -117,11 +133,11 @@ def test_match_moves_box_by_moving_average_and_confirms():
 
 def test_score_weights_heat_and_score_gain():
     one = [[64, 64, 192, 160]]
-    (t,) = Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1)).update(one, [2.0], SHAPE)
+    (t,) = update(Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1)), one, [2.0], SHAPE)
     assert t.score == 3.0  # 1 + max(2, 0)
-    (t,) = Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1, score_gain=0.5)).update(one, [2.0], SHAPE)
+    (t,) = update(Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1, score_gain=0.5)), one, [2.0], SHAPE)
     assert t.score == 2.0
-    (t,) = Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1)).update(one, None, SHAPE)
+    (t,) = update(Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1)), one, None, SHAPE)
     assert t.score == 1.0
 
 
@@ -130,7 +146,7 @@ def test_integration_accumulates_weak_evidence():
     # which opens the track; confirmed after 3 hits, on frame 5.
     tr = Tracker(TrackerConfig(decay=0.7, threshold=2.5, peak_fraction=0.0))
     window = [[640, 400, 736, 496]]
-    reported = [len(tr.update(window, [0.0], SHAPE)) for _ in range(7)]
+    reported = [len(update(tr, window, [0.0], SHAPE)) for _ in range(7)]
     assert reported == [0, 0, 0, 0, 0, 1, 1]
     assert tr.state.tracks[0].hits == 4
     np.testing.assert_allclose(tr.state.integrated.max(), sum(0.7**k for k in range(7)), rtol=1e-6)
@@ -148,11 +164,11 @@ def test_int_box_rounds_halves_up():
 def test_one_frame_false_positive_is_never_reported(n_windows, score):
     tr = Tracker()
     burst = car_windows([200, 500, 296, 596], offsets=[(8 * (k % 4), 8 * (k // 4)) for k in range(n_windows)])
-    assert tr.update(burst, np.full(n_windows, score), SHAPE) == []
+    assert update(tr, burst, np.full(n_windows, score), SHAPE) == []
     for _ in range(15):
         # Its afterglow in the integrated heat stays above the threshold for frames, but holds no
         # heat of the current frame, so it is never matched again.
-        assert tr.update([], [], SHAPE) == []
+        assert update(tr, [], [], SHAPE) == []
     assert tr.state.tracks == []
 
 
@@ -161,9 +177,9 @@ def test_strong_burst_afterglow_stays_above_threshold():
     # k <= 8, so blobs of pure afterglow are there, yet no track gets a second hit.
     tr = Tracker()
     burst = car_windows([200, 500, 296, 596], offsets=[(8 * (k % 4), 8 * (k // 4)) for k in range(12)])
-    tr.update(burst, np.full(12, 4.0), SHAPE)
+    update(tr, burst, np.full(12, 4.0), SHAPE)
     for _ in range(3):
-        tr.update([], [], SHAPE)
+        update(tr, [], [], SHAPE)
         assert tr.state.integrated.max() > 2.5
         assert all(t.hits == 1 for t in tr.state.tracks)
 
@@ -177,7 +193,7 @@ def test_steady_jittering_car_is_confirmed_once_and_smoothed(origin):
     for f in range(20):
         jx, jy = rng.integers(-2, 3, size=2)
         car = np.array([x0 + jx, y0 + jy, x0 + 128 + jx, y0 + 96 + jy])
-        out = tr.update(car_windows(car), rng.uniform(0.2, 1.5, size=4), SHAPE)
+        out = update(tr, car_windows(car), rng.uniform(0.2, 1.5, size=4), SHAPE)
         raw.append(car)
         if f < 2:
             assert out == []  # min_hits = 3: frames 0 and 1 are not enough
@@ -197,18 +213,18 @@ def test_car_that_disappears_coasts_then_is_retired():
     tr = Tracker()  # max_misses = 5
     car = np.array([500, 420, 628, 516])
     for _ in range(10):
-        out = tr.update(car_windows(car), np.ones(4), SHAPE)
+        out = update(tr, car_windows(car), np.ones(4), SHAPE)
     (last,) = out
     for k in range(1, 6):
         # Reported for max_misses frames on its last box, misses counting up.
-        (t,) = tr.update([], [], SHAPE)
+        (t,) = update(tr, [], [], SHAPE)
         assert (t.track_id, t.misses, t.hits) == (last.track_id, k, last.hits)
         np.testing.assert_array_equal(t.box, last.box)
-    assert tr.update([], [], SHAPE) == []  # miss 6 > max_misses: retired
+    assert update(tr, [], [], SHAPE) == []  # miss 6 > max_misses: retired
     assert tr.state.tracks == []
     # A car reappearing there later is a new track.
     for _ in range(3):
-        out = tr.update(car_windows(car), np.ones(4), SHAPE)
+        out = update(tr, car_windows(car), np.ones(4), SHAPE)
     assert [t.track_id for t in out] == [1]
 
 
@@ -218,7 +234,7 @@ def test_track_survives_short_detection_gap_with_same_id():
     ids = []
     for f in range(20):
         windows = car_windows(car) if f not in (8, 9, 10) else np.zeros((0, 4))
-        ids += [t.track_id for t in tr.update(windows, np.ones(len(windows)), SHAPE)]
+        ids += [t.track_id for t in update(tr, windows, np.ones(len(windows)), SHAPE)]
     assert set(ids) == {0} and len(ids) == 18  # reported every frame from frame 2 on
 
 
@@ -231,7 +247,7 @@ def test_two_cars_get_two_ids():
             "b": np.array([800 - 2 * f, 400, 912 - 2 * f, 480]),
         }
         windows = np.concatenate([car_windows(c) for c in cars.values()])
-        out = tr.update(windows, np.ones(len(windows)), SHAPE)
+        out = update(tr, windows, np.ones(len(windows)), SHAPE)
         if f < 2:
             assert out == []
             continue
@@ -248,8 +264,8 @@ def test_association_is_one_to_one_by_iou():
     # Two tracks; one blob overlapping both goes to the closer one, the other track misses.
     cfg = TrackerConfig(decay=0.0, threshold=0.5, min_hits=1, max_misses=3, smoothing=1.0)
     tr = Tracker(cfg)
-    tr.update([[0, 400, 128, 496], [136, 400, 264, 496]], None, SHAPE)  # two blobs (8 px gap)
-    out = tr.update([[120, 400, 248, 496]], None, SHAPE)
+    update(tr, [[0, 400, 128, 496], [136, 400, 264, 496]], None, SHAPE)  # two blobs (8 px gap)
+    out = update(tr, [[120, 400, 248, 496]], None, SHAPE)
     by_id = {t.track_id: t for t in out}
     assert set(by_id) == {0, 1}
     assert by_id[1].misses == 0 and by_id[0].misses == 1
@@ -260,8 +276,8 @@ def test_association_is_one_to_one_by_iou():
 def test_implausible_blobs_are_not_tracked():
     cfg = TrackerConfig(decay=0.0, threshold=0.5, min_hits=1)
     tr = Tracker(cfg)
-    assert tr.update([[0, 400, 24, 496]], None, SHAPE) == []  # 24 px wide < 32
-    assert tr.update([[0, 400, 400, 440]], None, SHAPE) == []  # aspect 10 > 4
+    assert update(tr, [[0, 400, 24, 496]], None, SHAPE) == []  # 24 px wide < 32
+    assert update(tr, [[0, 400, 400, 440]], None, SHAPE) == []  # aspect 10 > 4
     assert tr.state.tracks == []
 
 
@@ -270,7 +286,7 @@ def test_implausible_blobs_are_not_tracked():
 # --------------------------------------------------------------------------------------------
 def test_returned_tracks_are_copies():
     tr = Tracker(TrackerConfig(min_hits=1))
-    (t,) = tr.update(car_windows([500, 420, 628, 516]), np.ones(4), SHAPE)
+    (t,) = update(tr, car_windows([500, 420, 628, 516]), np.ones(4), SHAPE)
     t.box[:] = 0
     t.hits = 99
     assert tr.state.tracks[0].hits == 1 and tr.state.tracks[0].box.any()
@@ -280,15 +296,15 @@ def test_returned_tracks_are_copies():
 def test_chunked_processing_equals_one_pass(split):
     frames = scenario()
     whole = Tracker()
-    expected = [snapshot(whole.update(b, s, SHAPE)) for b, s in frames]
+    expected = [snapshot(update(whole, b, s, SHAPE)) for b, s in frames]
     assert any(len(e) == 2 for e in expected)  # the scenario does exercise two tracks
 
     first = Tracker()
-    got = [snapshot(first.update(b, s, SHAPE)) for b, s in frames[:split]]
+    got = [snapshot(update(first, b, s, SHAPE)) for b, s in frames[:split]]
     second = Tracker(TrackerConfig(), state=first.state)
     # The old tracker can go on independently without disturbing the new one.
-    first.update(car_windows([10, 400, 138, 496]), np.ones(4), SHAPE)
-    got += [snapshot(second.update(b, s, SHAPE)) for b, s in frames[split:]]
+    update(first, car_windows([10, 400, 138, 496]), np.ones(4), SHAPE)
+    got += [snapshot(update(second, b, s, SHAPE)) for b, s in frames[split:]]
     assert got == expected
     np.testing.assert_array_equal(second.state.integrated, whole.state.integrated)
     assert (second.state.next_id, second.state.frame_index) == (whole.state.next_id, len(frames))
@@ -297,22 +313,22 @@ def test_chunked_processing_equals_one_pass(split):
 def test_state_copy_is_deep():
     tr = Tracker()
     for b, s in scenario(12):
-        tr.update(b, s, SHAPE)
+        update(tr, b, s, SHAPE)
     snap = tr.state.copy()
     before = (snap.integrated.copy(), snapshot(snap.tracks), snap.next_id, snap.frame_index)
     for b, s in scenario(12, seed=9):
-        tr.update(b, s, SHAPE)
+        update(tr, b, s, SHAPE)
     np.testing.assert_array_equal(snap.integrated, before[0])
     assert (snapshot(snap.tracks), snap.next_id, snap.frame_index) == before[1:]
 
 
 def test_frame_shape_change_raises_and_keeps_state():
     tr = Tracker()
-    tr.update(car_windows([500, 420, 628, 516]), np.ones(4), (720, 1280))  # (H, W) == (H, W, 3)
-    tr.update(car_windows([500, 420, 628, 516]), np.ones(4), SHAPE)
+    update(tr, car_windows([500, 420, 628, 516]), np.ones(4), (720, 1280))  # (H, W) == (H, W, 3)
+    update(tr, car_windows([500, 420, 628, 516]), np.ones(4), SHAPE)
     before = tr.state.copy()
     with pytest.raises(ValueError, match="frame_shape"):
-        tr.update([], [], (721, 1280, 3))  # same heat-map size at cell 8, still refused
+        update(tr, [], [], (721, 1280, 3))  # same heat-map size at cell 8, still refused
     assert tr.state.frame_index == before.frame_index == 2
     np.testing.assert_array_equal(tr.state.integrated, before.integrated)
 
@@ -331,13 +347,20 @@ def test_frame_shape_change_raises_and_keeps_state():
 def test_update_rejects_bad_input(boxes, scores, shape, match):
     tr = Tracker()
     with pytest.raises(ValueError, match=match):
-        tr.update(boxes, scores, shape)
+        update(tr, boxes, scores, shape)
+    assert tr.state.frame_index == 0
+
+
+def test_update_takes_detections_only():
+    tr = Tracker()
+    with pytest.raises(ValueError, match="Detections"):
+        tr.update([[0, 0, 10, 10]], SHAPE)
     assert tr.state.frame_index == 0
 
 
 def test_state_must_fit_config():
     tr = Tracker()
-    tr.update([], [], SHAPE)
+    update(tr, [], [], SHAPE)
     with pytest.raises(ValueError, match="cell"):
         Tracker(TrackerConfig(cell=4), state=tr.state)
     with pytest.raises(ValueError, match="TrackerState"):
@@ -351,11 +374,11 @@ def test_state_must_fit_config():
 def test_reset_forgets_everything():
     tr = Tracker()
     for b, s in scenario(15):
-        tr.update(b, s, SHAPE)
+        update(tr, b, s, SHAPE)
     assert tr.state.next_id > 0
     tr.reset()
     assert tr.state == TrackerState()
-    out = [tr.update(car_windows([300, 300, 428, 396]), np.ones(4), (480, 640)) for _ in range(3)]
+    out = [update(tr, car_windows([300, 300, 428, 396]), np.ones(4), (480, 640)) for _ in range(3)]
     assert [t.track_id for t in out[-1]] == [0]  # ids restart; a new frame size is fine after reset
 
 
@@ -364,7 +387,7 @@ def test_confirmation_backfills_the_frames_before_it():
     cfg = TrackerConfig(decay=0.6, threshold=2.0, min_hits=3, peak_fraction=0.0)
     tr = Tracker(cfg)
     car = car_windows([600, 420, 696, 516], offsets=[(0, 0), (8, 0), (0, 8), (8, 8)])
-    out = [tr.update(car, np.full(len(car), 1.0), SHAPE) for _ in range(5)]
+    out = [update(tr, car, np.full(len(car), 1.0), SHAPE) for _ in range(5)]
     first = next(i for i, r in enumerate(out) if r)
     assert first == cfg.min_hits - 1  # born after min_hits matched frames, never before
     (t,) = out[first]
@@ -372,3 +395,16 @@ def test_confirmation_backfills_the_frames_before_it():
     for _, box in t.backfill:
         assert box.shape == (4,) and np.all(np.isfinite(box))
     assert out[first + 1][0].backfill == []  # only on the confirmation frame
+
+
+def test_backfill_detections_name_the_earlier_frames():
+    cfg = TrackerConfig(decay=0.6, threshold=2.0, min_hits=3, peak_fraction=0.0)
+    tr = Tracker(cfg)
+    car = car_windows([600, 420, 696, 516], offsets=[(0, 0), (8, 0), (0, 8), (8, 8)])
+    fills = []
+    for _ in range(4):
+        found = tr.update(Detections(car, score=np.ones(len(car))), SHAPE)
+        fills.append(tr.backfill)
+    assert [len(f) for f in fills] == [0, 0, 2, 0]  # only on the confirmation frame
+    assert fills[2].frame.tolist() == [0, 1]
+    assert fills[2].track_id.tolist() == [found.track_id[0]] * 2

@@ -22,7 +22,6 @@ import time
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any
 from importlib import resources
 from pathlib import Path
@@ -96,7 +95,7 @@ class VehicleClassifier:
     intercept : float
         SVM bias; the decision is ``z @ coef + intercept`` (> 0: vehicle).
     metrics : dict, optional
-        Training report (accuracies, timings), saved with the model.
+        Training report (accuracies, timings), saved with the model; kept as a JSON copy.
     library_version : str, optional
         Version of the library that trained the model.
     detector_config : DetectorConfig, optional
@@ -146,7 +145,7 @@ class VehicleClassifier:
             arr.setflags(write=False)
             set_(self, name, arr)
         set_(self, "intercept", float(self.intercept))
-        set_(self, "metrics", MappingProxyType(json.loads(json.dumps(dict(self.metrics or {})))))
+        set_(self, "metrics", json.loads(json.dumps(dict(self.metrics or {}))))  # a JSON copy
         set_(self, "library_version", str(self.library_version))
         weights = self.coef / self.scaler_scale
         weights.setflags(write=False)

@@ -210,8 +210,7 @@ def _cmd_train(args) -> int:
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates)
     load_s = time.perf_counter() - t
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed)
-    model.metrics["load_seconds"] = round(load_s, 3)
-    model.metrics["drop_duplicates"] = bool(args.drop_duplicates)
+    model = model.replace(metrics={**model.metrics, "load_seconds": round(load_s, 3), "drop_duplicates": bool(args.drop_duplicates)})
     report = _train_report(model)
     m = model.metrics
     print(f"images: {m['n_images']} ({', '.join(f'{k} {v}' for k, v in ds.counts().items())})")

@@ -158,3 +158,24 @@ class Detector:
             finally:
                 for _, fut in pending:
                     fut.cancel()
+
+    def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2) -> Iterator[Detections]:
+        """Detect and follow vehicles through a sequence of RGB ``uint8`` frames.
+
+        Parameters
+        ----------
+        frames : iterable of ndarray
+            Decoded frames in order.
+        tracker : Tracker, optional
+            Pass the tracker of an earlier chunk to continue where it stopped (its frame
+            counter continues too); a new one by default.
+        workers : int
+            Frames searched at once (threads).
+
+        Yields
+        ------
+        Detections
+            One per frame, in order: the frame's tracked vehicles (``frame`` is its index).
+        """
+        for _, found in self.track_frames(frames, tracker, workers=workers):
+            yield found

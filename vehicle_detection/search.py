@@ -275,7 +275,7 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
     return out
 
 
-def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan()) -> Detections:
+def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None = None) -> Detections:
     """Score every window of the plan one at a time: crop, extract features, classify.
 
     The reference the fast :func:`search` is tested against; about 100 times slower.
@@ -287,6 +287,7 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan =
         ``score`` and ``data["scale_index"]``.
     """
     frame = as_rgb_uint8(frame, name="frame")
+    plan = model.detector_config.plan if plan is None else plan
     work, f = _working_frame(frame, plan)
     cfg = model.config
     side, ppc = cfg.window, cfg.pixels_per_cell
@@ -484,7 +485,7 @@ def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
     return out.ravel()
 
 
-def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = SearchPlan(), *, all_windows: bool = False) -> Detections:
+def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None = None, *, all_windows: bool = False) -> Detections:
     """Find the windows the classifier calls vehicles, scoring every window of the plan at once.
 
     Parameters
@@ -492,16 +493,19 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan = Searc
     frame : ndarray of uint8, shape (H, W, 3)
         RGB frame (any size; resized internally to ``plan.reference_height``).
     model : VehicleClassifier
-    plan : SearchPlan
+    plan : SearchPlan, optional
+        The model's own plan by default.
     all_windows : bool
         Return every window with its margin instead of only those above ``plan.threshold``.
 
     Returns
     -------
-    Windows
-        Boxes in ``frame``'s pixels with their margins.
+    Detections
+        Windows in ``frame``'s pixels with their margins as ``score`` and the index of the
+        plan's scale that produced each as ``data["scale_index"]``.
     """
     frame = as_rgb_uint8(frame, name="frame")
+    plan = model.detector_config.plan if plan is None else plan
     work, f = _working_frame(frame, plan)
     cfg = model.config
     parts = []

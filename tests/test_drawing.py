@@ -1,0 +1,88 @@
+"""Tests of vehicle_detection.drawing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vehicle_detection.detections import Detections
+from vehicle_detection.drawing import draw_boxes, draw_detections
+
+
+def _image(h=60, w=80, value=50):
+    return np.full((h, w, 3), value, dtype=np.uint8)
+
+
+def test_draw_leaves_input_unchanged():
+    image = _image()
+    image.setflags(write=False)  # any write to the input would raise
+    out = draw_boxes(image, [[10, 10, 30, 30]], labels=["7"])
+    assert np.all(image == 50)
+    assert out is not image and not np.shares_memory(out, image)
+    assert out.dtype == np.uint8 and out.shape == image.shape and out.flags.c_contiguous
+    assert not np.array_equal(out, image)
+
+
+@pytest.mark.parametrize("thickness", [1, 2, 3, 5])
+def test_draw_edges_inside_the_box(thickness):
+    # Box [10, 12, 40, 45): columns 10..39, rows 12..44.
+    out = draw_boxes(_image(value=0), [[10, 12, 40, 45]], color=(0, 255, 0), thickness=thickness)
+    drawn = out[..., 1] == 255
+    assert np.all(out[..., 0] == 0) and np.all(out[..., 2] == 0)  # only the green channel
+    ys, xs = np.nonzero(drawn)
+    assert (xs.min(), xs.max(), ys.min(), ys.max()) == (10, 39, 12, 44)
+    # A row through the middle crosses the left and right edges, each `thickness` pixels wide.
+    np.testing.assert_array_equal(np.flatnonzero(drawn[28]),
+                                  list(range(10, 10 + thickness)) + list(range(40 - thickness, 40)))
+    np.testing.assert_array_equal(np.flatnonzero(drawn[:, 25]),
+                                  list(range(12, 12 + thickness)) + list(range(45 - thickness, 45)))
+
+
+def test_draw_labels_add_pixels_above_box():
+    plain = draw_boxes(_image(value=0), [[10, 30, 40, 50]], thickness=1)
+    labelled = draw_boxes(_image(value=0), [[10, 30, 40, 50]], thickness=1, labels=[12])
+    assert np.array_equal(plain[30:], labelled[30:])  # box unchanged
+    assert labelled[:30].any() and not plain[:30].any()  # tag above the box
+
+
+def test_draw_clips_boxes_outside_image_and_accepts_views():
+    image = np.zeros((40, 60, 3), dtype=np.uint8)
+    view = image[:, ::2]  # not contiguous
+    out = draw_boxes(view, [[-100, -100, 1000, 1000], [5.4, 5.6, 20.2, 20.0]], thickness=1)
+    assert out.shape == (40, 30, 3)
+    assert not out[0].any()  # the huge box's edges are all outside
+    # Float box rounds to [5, 6, 20, 20): top edge row 6, columns 5..19.
+    np.testing.assert_array_equal(np.flatnonzero(out[6, :, 1]), np.arange(5, 20))
+
+
+def test_draw_no_boxes_is_a_copy():
+    image = _image()
+    out = draw_boxes(image, np.zeros((0, 4)), labels=[])
+    assert np.array_equal(out, image) and out is not image
+
+
+@pytest.mark.parametrize(
+    "image, kwargs",
+    [
+        (np.zeros((10, 10, 3), dtype=np.float32), {}),
+        (np.zeros((10, 10), dtype=np.uint8), {}),
+        (np.zeros((10, 10, 4), dtype=np.uint8), {}),
+        (np.zeros((10, 10, 3), dtype=np.uint8), {"labels": ["a", "b"]}),
+        (np.zeros((10, 10, 3), dtype=np.uint8), {"thickness": 0}),
+        (np.zeros((10, 10, 3), dtype=np.uint8), {"color": (0, 300, 0)}),
+        (np.zeros((10, 10, 3), dtype=np.uint8), {"color": (0, 255)}),
+    ],
+)
+def test_draw_rejects_bad_arguments(image, kwargs):
+    with pytest.raises(ValueError):
+        draw_boxes(image, [[1, 1, 5, 5]], **kwargs)
+
+
+def test_draw_detections_labels_tracked_boxes_only():
+    image = _image(value=0)
+    box = [[10, 30, 40, 50]]
+    untracked = draw_detections(image, Detections(box))
+    tracked = draw_detections(image, Detections(box, track_id=[7]))
+    assert np.array_equal(untracked, draw_boxes(image, box, thickness=4))
+    assert np.array_equal(tracked, draw_boxes(image, box, thickness=4, labels=["car 7"]))
+    assert not np.array_equal(tracked, untracked)
