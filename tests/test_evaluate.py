@@ -19,6 +19,8 @@ from vehicle_detection.errors import InputError
 from vehicle_detection.geometry import box_iou
 from vehicle_detection.evaluate import (
     Annotations,
+    average_precision,
+    evaluation_report,
     FrameLabels,
     Scores,
     evaluate_detections,
@@ -317,11 +319,12 @@ class TestScores:
         assert (s.precision, s.recall, s.f1, s.fp_per_frame) == (p, r, f1, 0.0)
 
     def test_as_dict_is_json_ready(self):
-        s = Scores(tp=np.int64(3), fp=1, fn=2, ignored=0, n_frames=4)
+        s = Scores(tp=np.int64(3), fp=1, fn=2, ignored=0, n_frames=4, iou_sum=2.4)
         d = json.loads(json.dumps(s.as_dict()))
         assert d == {
             "tp": 3, "fp": 1, "fn": 2, "ignored": 0, "n_frames": 4,
             "precision": 0.75, "recall": 0.6, "f1": pytest.approx(2 / 3), "fp_per_frame": 0.25,
+            "mean_iou": pytest.approx(0.8),
         }
 
     def test_rejects_negative_counts(self):
@@ -343,7 +346,7 @@ class TestEvaluateDetections:
     def test_perfect_detections(self):
         ann = _annotations(self.ANN)
         scores = evaluate_detections({f: lab.cars for f, lab in ann.frames.items()}, ann)
-        assert list(scores) == [0.5, 0.3]
+        assert list(scores) == [0.5, 0.7]
         for s in scores.values():
             assert (s.tp, s.fp, s.fn, s.n_frames) == (3, 0, 0, 3)
             assert s.precision == s.recall == s.f1 == 1.0
@@ -452,3 +455,55 @@ def test_evaluation_counts_are_consistent(frames, thresholds, ignore_overlap):
         assert s.n_frames == len(frames)
         for rate in (s.precision, s.recall, s.f1):
             assert 0.0 <= rate <= 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# Mean IoU, average precision, tracking frames and the report
+# --------------------------------------------------------------------------------------------
+def test_mean_iou_of_matched_pairs():
+    ann = Annotations(video=None, frames={0: FrameLabels(cars=[CAR, [300, 100, 400, 200]])})
+    # CAR matched exactly (IoU 1); the second car by a box covering 80 of its 100 columns (0.8).
+    s = evaluate_detections(Detections([CAR, [300, 100, 380, 200]]), ann, [0.5])[0.5]
+    assert s.tp == 2 and s.mean_iou == pytest.approx(0.9)
+
+
+def test_average_precision_by_hand():
+    cars = [[0, 0, 10, 10], [20, 0, 30, 10], [40, 0, 50, 10]]
+    ann = Annotations(video=None, frames={0: FrameLabels(cars=cars[:2], ignore=[[100, 100, 200, 200]]), 1: FrameLabels(cars=cars[2:])})
+    dets = Detections(
+        [cars[0], [60, 0, 70, 10], [120, 120, 140, 140], cars[1], cars[0], cars[2]],
+        score=[0.9, 0.8, 0.75, 0.7, 0.6, 0.5],
+        frame=[0, 0, 0, 0, 0, 1],
+    )
+    # Ranked: TP (0.9), FP (0.8), ignored (0.75, dropped), TP (0.7), FP duplicate (0.6), TP (0.5).
+    # Precision 1, 1/2, 2/3, 2/4, 3/5 at recall 1/3, 1/3, 2/3, 2/3, 1. Made monotone: 1, 2/3, 2/3, 3/5, 3/5.
+    # AP = 1/3 * 1 + 1/3 * 2/3 + 1/3 * 3/5
+    assert average_precision(dets, ann) == pytest.approx((1 + 2 / 3 + 3 / 5) / 3)
+    assert average_precision(Detections.empty(), ann) == 0.0
+    perfect = Detections(cars, frame=[0, 0, 1])
+    assert average_precision(perfect, ann) == pytest.approx(1.0)
+
+
+def test_report_adds_tracking_scores_for_identified_labels():
+    frames = {f: FrameLabels(cars=[CAR], ids=[4], ignore=[[500, 500, 600, 600]]) for f in range(3)}
+    ann = Annotations(video=None, frames=frames)
+    tracked = Detections([CAR, CAR, CAR, [510, 510, 560, 560]], track_id=[1, 1, 1, 9], frame=[0, 1, 2, 2])
+    report = evaluation_report(tracked, ann, fps=25.0)
+    assert report["at_iou_0.5"]["f1"] == 1.0 and report["ap50"] == pytest.approx(1.0)
+    assert report["fp_per_minute"] == 0.0
+    # The box in the ignore region is neither a false positive nor a tracker box.
+    assert report["tracking"]["mota"] == 1.0 and report["tracking"]["n_tracker"] == 3
+    assert "tracking" not in evaluation_report(tracked.replace(track_id=None), ann)
+
+
+def test_labels_with_ids_and_files(tmp_path):
+    path = tmp_path / "labels.json"
+    path.write_text(json.dumps({"video": "../imgs", "frames": {"0": {"cars": [CAR], "ids": [3], "ignore": [], "file": "a.jpg"}}}))
+    ann = load_annotations(path)
+    assert ann.tracked and ann.frames[0].ids.tolist() == [3] and ann.frames[0].file == "a.jpg"
+    assert ann.source == tmp_path / ".." / "imgs"
+    for frame, fragment in (({"cars": [CAR], "ids": [3, 4]}, "one distinct id"), ({"cars": [CAR], "ids": ["a"]}, "whole numbers"),
+                            ({"cars": [CAR], "file": "x/a.jpg"}, "file name")):
+        path.write_text(json.dumps({"frames": {"0": frame}}))
+        with pytest.raises(InputError, match=fragment):
+            load_annotations(path)

@@ -20,7 +20,7 @@ import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import InputError, OutputError, VehicleDetectionError
+from .errors import InputError, OutputError, UsageError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
@@ -149,9 +149,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
 
-    p = sub.add_parser("evaluate", help="score detections on a labelled video")
-    p.add_argument("--video", required=True)
-    p.add_argument("--labels", required=True, help="annotation JSON (see ../shared/data/README.md)")
+    p = sub.add_parser(
+        "evaluate",
+        help="score the detector (or a boxes CSV) against hand-labelled frames",
+        description="Precision, recall and F1 at IoU 0.5 and 0.7, mean IoU of matched boxes, AP50, false positives "
+        "per minute, and MOTA / IDF1 / HOTA where the labels carry track ids. Each labels file names its video "
+        "or image folder (relative to the file); the detector runs on it, or --boxes scores an existing CSV.",
+    )
+    p.add_argument("--labels", required=True, nargs="+", help="annotation JSON file(s) (format: dev_set/README.md)")
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--video", default=None, help="the labelled video or image folder, instead of the one the labels name")
+    source.add_argument("--boxes", default=None, help="score this boxes CSV instead of running the detector")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
     p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
     p.add_argument("--no-progress", action="store_true")
@@ -380,43 +388,92 @@ def _cmd_detect(args) -> int:
     return 0
 
 
-def _cmd_evaluate(args) -> int:
+def _detect_for_labels(labels, source: Path, detector, progress: bool):
+    """Run the detector over what a labels file covers: ``(Detections, fps or None)``."""
     from contextlib import closing
     from itertools import islice
 
-    from .evaluate import evaluate_detections, load_annotations
-    from .video import process_video, read_frames
+    from .detections import Detections
+    from .images import list_images, read_image
+    from .video import probe_video, process_video, read_frames
 
-    labels = load_annotations(args.labels)
-    if not labels.frames:
-        raise InputError(f"{args.labels}: no labelled frames; nothing to score")
     last = max(labels.frames) + 1
+    if source.is_dir():
+        files = list_images(source)
+        if len(files) < last:
+            raise InputError(f"{labels.path}: labels image {last - 1}, but {source} has only {len(files)} images")
+        for i, lab in labels.frames.items():
+            if lab.file is not None and files[i].name != lab.file:
+                raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {source} is {files[i].name}")
+        return Detections.concatenate(detector.detect_image(read_image(files[i])).replace(frame=i) for i in labels.frames), None
     # Labels beyond the end of the video would silently count as missed cars: check first, by
     # decoding (the container's frame count is only an estimate for some formats).
-    with closing(read_frames(args.video)) as frames:
+    with closing(read_frames(source)) as frames:
         n_decoded = sum(1 for _ in islice(frames, last))
     if n_decoded < last:
         beyond = [f for f in labels.frames if f >= n_decoded]
         raise InputError(
-            f"{args.labels}: labels frame(s) {', '.join(map(str, beyond))}, but {args.video} has only "
+            f"{labels.path}: labels frame(s) {', '.join(map(str, beyond))}, but {source} has only "
             f"{n_decoded} decoded frames (0..{n_decoded - 1}); wrong video or labels?"
         )
-    detector = _load_detector(args.model)
-    t = time.perf_counter()
-    table = process_video(args.video, None, detector=detector, progress=not args.no_progress, max_frames=last)
-    seconds = time.perf_counter() - t
-    results = evaluate_detections(table, labels, iou_thresholds=(0.5, 0.3))
-    for thr, s in results.items():
+    table = process_video(source, None, detector=detector, progress=progress, max_frames=last)
+    return table, probe_video(source).fps
+
+
+def _print_report(name: str, r: dict) -> None:
+    print(f"{name}: {r['n_frames']} frames, {r['n_cars']} cars")
+    for key in ("at_iou_0.5", "at_iou_0.7"):
+        s = r[key]
         print(
-            f"IoU >= {thr}: precision {s.precision:.3f}  recall {s.recall:.3f}  F1 {s.f1:.3f}  "
-            f"FP/frame {s.fp_per_frame:.2f}  (tp {s.tp}, fp {s.fp}, fn {s.fn}, ignored {s.ignored}, frames {s.n_frames})"
+            f"  IoU >= {key[-3:]}: precision {s['precision']:.3f}  recall {s['recall']:.3f}  F1 {s['f1']:.3f}  "
+            f"mean IoU {s['mean_iou']:.3f}  (tp {s['tp']}, fp {s['fp']}, fn {s['fn']}, ignored {s['ignored']})"
         )
-    print(f"processed {last} frames in {seconds:.1f} s")
+    extra = f"  AP50 {r['ap50']:.3f}" if "ap50" in r else " "
+    if "fp_per_minute" in r:
+        extra += f"  false positives per minute {r['fp_per_minute']:.1f}"
+    print(extra)
+    if "tracking" in r:
+        t = r["tracking"]
+        print(f"  tracking: MOTA {t['mota']:.3f}  IDF1 {t['idf1']:.3f}  HOTA {t['hota']:.3f}  (DetA {t['deta']:.3f}, AssA {t['assa']:.3f}, id switches {t['id_switches']})")
+
+
+def _cmd_evaluate(args) -> int:
+    from .evaluate import Scores, evaluation_report, load_annotations
+    from .tables import read_boxes_csv
+
+    all_labels = [load_annotations(p) for p in args.labels]
+    for labels in all_labels:
+        if not labels.frames:
+            raise InputError(f"{labels.path}: no labelled frames; nothing to score")
+    if args.boxes and len(all_labels) > 1:
+        raise UsageError("--boxes scores one CSV against one labels file")
+    if args.video and len(all_labels) > 1:
+        raise UsageError("--video applies to one labels file; with several, each names its own video")
+    detector = None if args.boxes else _load_detector(args.model)
+    t = time.perf_counter()
+    reports = {}
+    for labels in all_labels:
+        if args.boxes:
+            found, fps = read_boxes_csv(args.boxes), None
+        else:
+            source = Path(args.video) if args.video else labels.source
+            if source is None:
+                raise InputError(f"{labels.path}: the labels name no video; give --video")
+            found, fps = _detect_for_labels(labels, source, detector, progress=not args.no_progress)
+        reports[str(labels.path)] = evaluation_report(found, labels, fps=fps)
+        _print_report(str(labels.path), reports[str(labels.path)])
+    pooled = {}
+    for key in ("at_iou_0.5", "at_iou_0.7"):
+        fields = ("tp", "fp", "fn", "ignored", "n_frames")
+        total = {f: sum(r[key][f] for r in reports.values()) for f in fields}
+        iou_sum = sum(r[key]["mean_iou"] * r[key]["tp"] for r in reports.values())
+        pooled[key] = Scores(**total, iou_sum=iou_sum).as_dict()
+    if len(reports) > 1:
+        _print_report("all", {"n_frames": pooled["at_iou_0.5"]["n_frames"], "n_cars": sum(r["n_cars"] for r in reports.values()), **pooled})
+    print(f"scored in {time.perf_counter() - t:.1f} s")
     if args.json:
-        main_scores = results[0.5].as_dict()
-        out = {k: main_scores[k] for k in ("precision", "recall", "f1", "fp_per_frame", "tp", "fp", "fn", "ignored", "n_frames")}
-        out["iou_threshold"] = 0.5
-        out["at_iou_0.3"] = results[0.3].as_dict()
+        out = dict(pooled["at_iou_0.5"])
+        out.update(iou_threshold=0.5, **{"at_iou_0.7": pooled["at_iou_0.7"], "files": reports})
         print(json.dumps(out))
     return 0
 

@@ -43,7 +43,9 @@ class Detector:
     --------
     >>> import vehicle_detection as vd
     >>> detector = vd.Detector()
-    >>> found = detector.detect_image(vd.read_image("test_images/test1.jpg"))  # doctest: +SKIP
+    >>> found = detector.detect_image(vd.read_image("test_images/test1.jpg"))
+    >>> len(found), found.track_id is None
+    (2, True)
     """
 
     def __init__(self, model: VehicleClassifier | None = None, config: DetectorConfig | None = None):

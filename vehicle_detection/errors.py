@@ -47,3 +47,9 @@ class DownloadError(VehicleDetectionError, OSError):
     """A download failed, was cut short, or did not match its checksum."""
 
     exit_code = 6
+
+
+class UsageError(VehicleDetectionError):
+    """Options that do not go together (exit status 2, as for any bad command line)."""
+
+    exit_code = 2

@@ -46,10 +46,14 @@ __all__ = [
     "load_annotations",
     "match_frame",
     "evaluate_detections",
+    "average_precision",
+    "tracking_frames",
+    "evaluation_report",
 ]
 
 _FRAME_KEY = re.compile(r"0|[1-9][0-9]*", re.ASCII)
-_FRAME_FIELDS = ("cars", "ignore")
+_BOX_FIELDS = ("cars", "ignore")
+_FRAME_FIELDS = ("cars", "ignore", "ids", "file")
 
 
 def _frozen_int_boxes(boxes: ArrayLike, name: str) -> np.ndarray:
@@ -72,11 +76,17 @@ class FrameLabels:
     ignore : array_like, shape (m, 4)
         Regions (far, truncated or oncoming vehicles) in which an unmatched detection is not a
         false positive. Stored as a read-only ``int64`` array; defaults to none.
+    ids : array_like of int, shape (n,), optional
+        Track id of each car (the same vehicle has the same id in every frame), for tracking
+        metrics; None when the frame's cars are not identified.
+    file : str, optional
+        For a folder of images: the image file the frame is.
 
     Raises
     ------
     ValueError
-        If a box is not 4 whole numbers with ``x2 > x1`` and ``y2 > y1``.
+        If a box is not 4 whole numbers with ``x2 > x1`` and ``y2 > y1``, or ``ids`` does not
+        give one distinct integer per car.
 
     Notes
     -----
@@ -85,15 +95,23 @@ class FrameLabels:
 
     cars: np.ndarray
     ignore: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
+    ids: np.ndarray | None = None
+    file: str | None = None
 
     def __post_init__(self) -> None:
-        for name in _FRAME_FIELDS:
+        for name in _BOX_FIELDS:
             arr = _frozen_int_boxes(getattr(self, name), name)
             empty = np.flatnonzero((arr[:, 2] == arr[:, 0]) | (arr[:, 3] == arr[:, 1]))
             if empty.size:
                 i = int(empty[0])
                 raise ValueError(f"{name}[{i}] = {arr[i].tolist()} has zero area (x2 == x1 or y2 == y1)")
             object.__setattr__(self, name, arr)
+        if self.ids is not None:
+            ids = np.array(self.ids, dtype=np.int64).reshape(-1)
+            if len(ids) != len(self.cars) or len(set(ids.tolist())) != len(ids):
+                raise ValueError(f"ids must give one distinct integer per car ({len(self.cars)}); got {ids.tolist()}")
+            ids.setflags(write=False)
+            object.__setattr__(self, "ids", ids)
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,13 +121,29 @@ class Annotations:
     Parameters
     ----------
     video : str or None
-        The annotated video as written in the file (relative to the data folder), if given.
+        The annotated video (or folder of images) as written in the file, if given.
     frames : dict of int to FrameLabels
         Labels by 0-based decoded frame index, in increasing frame order.
+    path : Path, optional
+        The annotation file, when read from one; ``video`` is relative to its folder.
     """
 
     video: str | None
     frames: dict[int, FrameLabels]
+    path: Path | None = None
+
+    @property
+    def source(self) -> Path | None:
+        """The video or image folder the labels are of: ``video`` relative to the file's folder."""
+        if self.video is None:
+            return None
+        base = self.path.parent if self.path is not None else Path(".")
+        return base / self.video
+
+    @property
+    def tracked(self) -> bool:
+        """Every labelled frame identifies its cars (``ids``): tracking metrics apply."""
+        return bool(self.frames) and all(f.ids is not None for f in self.frames.values())
 
     @property
     def n_cars(self) -> int:
@@ -159,16 +193,25 @@ def _parse_frame(key: str, value: Any, path: Path) -> FrameLabels:
         raise InputError(f"{path}: {where} must be an object with 'cars' and 'ignore'")
     unknown = sorted(set(value) - set(_FRAME_FIELDS))
     if unknown:
-        raise InputError(f"{path}: {where} has unknown key(s) {unknown}; expected only 'cars' and 'ignore'")
+        raise InputError(f"{path}: {where} has unknown key(s) {unknown}; expected 'cars', 'ignore', 'ids' and 'file'")
     if "cars" not in value:
         raise InputError(f"{path}: {where} has no 'cars' list (write \"cars\": [] for a frame without cars)")
     lists = {}
-    for name in _FRAME_FIELDS:
+    for name in _BOX_FIELDS:
         boxes = value.get(name, [])
         if not isinstance(boxes, list):
             raise InputError(f"{path}: {where}.{name} must be a list of boxes")
         lists[name] = [_parse_box(b, f"{where}.{name}[{i}]", path) for i, b in enumerate(boxes)]
-    return FrameLabels(cars=lists["cars"], ignore=lists["ignore"])
+    ids = value.get("ids")
+    if ids is not None:
+        if not isinstance(ids, list) or any(isinstance(i, bool) or not isinstance(i, int) or not 0 <= i <= MAX_COORD for i in ids):
+            raise InputError(f"{path}: {where}.ids must be a list of whole numbers 0..{MAX_COORD}, one per car")
+        if len(ids) != len(lists["cars"]) or len(set(ids)) != len(ids):
+            raise InputError(f"{path}: {where}.ids must give one distinct id per car ({len(lists['cars'])}); got {ids}")
+    file = value.get("file")
+    if file is not None and (not isinstance(file, str) or not file or "/" in file or "\\" in file):
+        raise InputError(f"{path}: {where}.file must be a file name (no folders)")
+    return FrameLabels(cars=lists["cars"], ignore=lists["ignore"], ids=ids, file=file)
 
 
 def load_annotations(path: str | os.PathLike) -> Annotations:
@@ -180,7 +223,9 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
         JSON object with ``frames`` (required) mapping frame index strings (``"0"``, ``"50"``; no
         sign, spaces or leading zeros) to objects with ``cars`` (required) and ``ignore``
         (optional) lists of ``[x1, y1, x2, y2]`` boxes of whole, non-negative pixels with
-        ``x2 > x1`` and ``y2 > y1``; and optionally ``video`` (string or null). Other top-level
+        ``x2 > x1`` and ``y2 > y1``, ``ids`` (optional, one distinct track id per car) and
+        ``file`` (optional, the image file of a folder's frame); and optionally ``video``
+        (string or null: the video or image folder, relative to the JSON file). Other top-level
         keys (e.g. ``format``) are allowed and ignored; other keys inside a frame are refused, so
         that a misspelt ``"ignroe"`` cannot silently drop labels.
 
@@ -228,7 +273,7 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
         if len(key) > 10 or int(key) > MAX_COORD:
             raise InputError(f"{path}: frame key {key} is beyond the largest frame index {MAX_COORD}")
         frames[int(key)] = _parse_frame(key, value, path)
-    return Annotations(video=video, frames=dict(sorted(frames.items())))
+    return Annotations(video=video, frames=dict(sorted(frames.items())), path=path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -371,6 +416,8 @@ class Scores:
         inside ignore regions.
     n_frames : int
         Number of frames scored.
+    iou_sum : float
+        Sum of the IoUs of the matched pairs (``mean_iou`` is ``iou_sum / tp``).
 
     Notes
     -----
@@ -384,8 +431,10 @@ class Scores:
     fn: int
     ignored: int
     n_frames: int
+    iou_sum: float = 0.0
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "iou_sum", float(self.iou_sum))
         for name in ("tp", "fp", "fn", "ignored", "n_frames"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
@@ -411,6 +460,11 @@ class Scores:
         return 2 * p * r / (p + r) if p + r else 0.0
 
     @property
+    def mean_iou(self) -> float:
+        """Mean IoU of the matched pairs; 0.0 when nothing matched."""
+        return self.iou_sum / self.tp if self.tp else 0.0
+
+    @property
     def fp_per_frame(self) -> float:
         """False positives per scored frame; 0.0 when no frame was scored."""
         return self.fp / self.n_frames if self.n_frames else 0.0
@@ -426,6 +480,7 @@ class Scores:
             "precision": self.precision,
             "recall": self.recall,
             "f1": self.f1,
+            "mean_iou": self.mean_iou,
             "fp_per_frame": self.fp_per_frame,
         }
 
@@ -433,7 +488,7 @@ class Scores:
 def evaluate_detections(
     detections: Detections | Mapping[int, ArrayLike],
     annotations: Annotations,
-    iou_thresholds: Iterable[float] = (0.5, 0.3),
+    iou_thresholds: Iterable[float] = (0.5, 0.7),
     *,
     ignore_overlap: float = 0.5,
 ) -> dict[float, Scores]:
@@ -449,7 +504,7 @@ def evaluate_detections(
         annotated are skipped.
     annotations : Annotations
         From :func:`load_annotations`.
-    iou_thresholds : iterable of float, default (0.5, 0.3)
+    iou_thresholds : iterable of float, default (0.5, 0.7)
         Each in ``(0, 1]``; the frames are matched separately at each.
     ignore_overlap : float, default 0.5
         As for :func:`match_frame`.
@@ -479,8 +534,123 @@ def evaluate_detections(
     result: dict[float, Scores] = {}
     for t in thresholds:
         tp = fp = fn = ignored = 0
+        iou_sum = 0.0
         for frame, labels in annotations.frames.items():
             m = match_frame(dets[frame], labels, iou_threshold=t, ignore_overlap=ignore_overlap)
             tp, fp, fn, ignored = tp + m.tp, fp + m.fp, fn + m.fn, ignored + m.ignored
-        result[t] = Scores(tp=tp, fp=fp, fn=fn, ignored=ignored, n_frames=len(annotations.frames))
+            iou_sum += float(m.match_iou.sum())
+        result[t] = Scores(tp=tp, fp=fp, fn=fn, ignored=ignored, n_frames=len(annotations.frames), iou_sum=iou_sum)
     return result
+
+
+def average_precision(
+    detections: Detections, annotations: Annotations, iou_threshold: float = 0.5, *, ignore_overlap: float = 0.5
+) -> float:
+    """Average precision of scored detections over the labelled frames (AP50 at 0.5).
+
+    Detections of all labelled frames are ranked by ``score``. In each frame, in that order, a
+    detection is a true positive if its best-overlapping car not yet taken has IoU >=
+    ``iou_threshold``; otherwise it is dropped if it lies in an ignore region (as in
+    :func:`match_frame`) and is a false positive if not. AP is the area under the precision-recall
+    curve with precision made monotone (the all-point interpolation of PASCAL VOC 2010 on).
+
+    Returns
+    -------
+    float
+        In ``[0, 1]``; 0.0 when there are no cars.
+
+    Examples
+    --------
+    >>> ann = Annotations(None, {0: FrameLabels(cars=[[0, 0, 10, 10], [20, 0, 30, 10]])})
+    >>> dets = Detections([[0, 0, 10, 10], [50, 50, 60, 60], [20, 0, 30, 10]], score=[0.9, 0.8, 0.7])
+    >>> round(average_precision(dets, ann), 4)  # recall 0.5 at precision 1, then 1.0 at 2/3
+    0.8333
+    """
+    iou_threshold = _check_fraction(iou_threshold, "iou_threshold")
+    n_cars = annotations.n_cars
+    if n_cars == 0:
+        return 0.0
+    outcomes = []  # (score, 1 for TP / 0 for FP)
+    for frame, labels in annotations.frames.items():
+        dets = detections.at_frame(frame)
+        order = np.argsort(-dets.score, kind="stable")
+        boxes, scores = dets.xyxy[order], dets.score[order]
+        iou = box_iou(boxes, labels.cars)
+        taken = np.zeros(len(labels.cars), bool)
+        for i in range(len(boxes)):
+            cand = np.where(taken, -1.0, iou[i]) if len(labels.cars) else np.zeros(0)
+            j = int(np.argmax(cand)) if cand.size else -1
+            if j >= 0 and cand[j] >= iou_threshold:
+                taken[j] = True
+                outcomes.append((scores[i], 1))
+                continue
+            area = box_area(boxes[i : i + 1].astype(np.float64))
+            if len(labels.ignore) and area[0] > 0:
+                frac = box_intersection(boxes[i : i + 1].astype(np.float64), labels.ignore.astype(np.float64))[0] / area[0]
+                if (frac >= ignore_overlap).any():
+                    continue
+            outcomes.append((scores[i], 0))
+    if not outcomes:
+        return 0.0
+    outcomes.sort(key=lambda o: -o[0])
+    hits = np.array([o[1] for o in outcomes], np.float64)
+    tp = np.cumsum(hits)
+    precision = tp / np.arange(1, len(hits) + 1)
+    recall = tp / n_cars
+    precision = np.maximum.accumulate(precision[::-1])[::-1]  # the best precision at >= this recall
+    steps = np.diff(np.concatenate([[0.0], recall]))
+    return float(np.sum(steps * precision))
+
+
+def tracking_frames(detections: Detections, annotations: Annotations, *, ignore_overlap: float = 0.5) -> list:
+    """The labelled frames as ``(gt_ids, gt_boxes, tracker_ids, tracker_boxes)`` for
+    :func:`~vehicle_detection.tracking_metrics.tracking_scores`.
+
+    Detections that match no car at IoU >= 0.5 and lie in an ignore region are left out, as
+    :func:`match_frame` leaves them out of the false positives.
+
+    Raises
+    ------
+    ValueError
+        If the annotations carry no ``ids`` or the detections no ``track_id``.
+    """
+    if not annotations.tracked:
+        raise ValueError("the labels carry no track ids ('ids'); tracking metrics need them")
+    if detections.track_id is None:
+        raise ValueError("the detections are not tracked (no track_id)")
+    out = []
+    for frame, labels in annotations.frames.items():
+        dets = detections.at_frame(frame)
+        m = match_frame(dets.xyxy, labels, iou_threshold=0.5, ignore_overlap=ignore_overlap)
+        keep = np.setdiff1d(np.arange(len(dets)), m.ignored_detections)
+        out.append((labels.ids, labels.cars, dets.track_id[keep], dets.xyxy[keep]))
+    return out
+
+
+def evaluation_report(detections: Detections, annotations: Annotations, *, fps: float | None = None) -> dict:
+    """Every detection and tracking figure of detections against one annotation file.
+
+    Returns
+    -------
+    dict
+        ``n_frames``, ``n_cars``; ``at_iou_0.5`` and ``at_iou_0.7``: the :class:`Scores` of
+        :func:`evaluate_detections` as dicts (precision, recall, F1, mean IoU of matched boxes,
+        false positives per frame); ``ap50``; ``fp_per_minute`` when ``fps`` is given (false
+        positives per frame times frames per minute); and ``tracking`` (MOTA, IDF1, HOTA, ...)
+        when the labels carry track ids and the detections are tracked.
+    """
+    from .tracking_metrics import tracking_scores
+
+    scores = evaluate_detections(detections, annotations, (0.5, 0.7))
+    report = {
+        "n_frames": len(annotations.frames),
+        "n_cars": annotations.n_cars,
+        "at_iou_0.5": scores[0.5].as_dict(),
+        "at_iou_0.7": scores[0.7].as_dict(),
+        "ap50": average_precision(detections, annotations, 0.5),
+    }
+    if fps:
+        report["fp_per_minute"] = scores[0.5].fp_per_frame * fps * 60.0
+    if annotations.tracked and detections.track_id is not None:
+        report["tracking"] = tracking_scores(tracking_frames(detections, annotations)).as_dict()
+    return report
