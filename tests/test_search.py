@@ -57,7 +57,9 @@ def test_plan_windows_match_search_boxes(default_model):
         b = per_scale[k]
         assert len(b) > 0
         side = round(64 * s.scale)
-        assert np.all(np.abs((b[:, 2] - b[:, 0]) - side) <= 1)
+        inside = (b[:, 0] > 0) & (b[:, 2] < 1280)  # windows overhanging an edge are clipped
+        assert np.all(np.abs((b[inside, 2] - b[inside, 0]) - side) <= 1)
+        assert b[:, 0].min() == 0 and b[:, 2].max() == 1280 and (~inside).sum() >= 2
         assert b[:, 1].min() >= s.y_start and b[:, 3].max() <= s.y_stop
         assert b[:, 0].min() >= 0 and b[:, 2].max() <= 1280
 
@@ -140,3 +142,17 @@ def test_search_uses_the_models_plan_by_default(default_model, test_frames):
     wins = search(test_frames[0], model)
     assert np.all(wins.data["scale_index"] == 0)
     assert len(wins) == len(search(test_frames[0], model, plan, all_windows=True))
+
+
+def test_windows_overhang_the_frame_edges(default_model, test_frames):
+    """With overhang, windows reach past the left and right edges (mirrored pixels there), and
+    come back clipped to the frame; without, none touches an edge they cannot fit at."""
+    frame = test_frames[0]
+    plan = SearchPlan(scales=(SearchScale(2.0, 400, 592),), overhang=0.5)
+    wins = search(frame, default_model, plan, all_windows=True)
+    flat = search(frame, default_model, plan.__class__(scales=plan.scales, overhang=0.0), all_windows=True)
+    assert len(wins) > len(flat)
+    widths = wins.xyxy[:, 2] - wins.xyxy[:, 0]
+    assert widths.min() <= 64 + 8 and widths.max() == 128  # half a 128 px window cut off at most
+    assert wins.xyxy[:, 0].min() == 0 and wins.xyxy[:, 2].max() == frame.shape[1]
+    np.testing.assert_allclose(search_plain(frame, default_model, plan).score, wins.score, atol=1e-6)

@@ -13,7 +13,16 @@ import pytest
 
 from vehicle_detection.detections import Detections
 from vehicle_detection.geometry import box_iou
-from vehicle_detection.tracker import Track, Tracker, TrackerConfig, TrackerState
+from vehicle_detection.tracker import Track, Tracker, TrackerState
+from vehicle_detection.tracker import TrackerConfig as _TrackerConfig
+
+# The scenarios below were worked out with whole windows as heat, threshold 6 and smoothing 0.3;
+# the defaults tuned since then (inset windows, threshold 5, smoothing 0.5) are tested apart.
+WORKED = dict(threshold=6.0, smoothing=0.3, window_inset=(0.0, 0.0, 0.0, 0.0))
+
+
+def TrackerConfig(**kw) -> _TrackerConfig:  # noqa: N802  (stands in for the class)
+    return _TrackerConfig(**{**WORKED, **kw})
 
 SHAPE = (720, 1280, 3)
 
@@ -67,10 +76,11 @@ def scenario(n_frames: int = 40, seed: int = 3) -> list[tuple[np.ndarray, np.nda
 # Configuration
 # --------------------------------------------------------------------------------------------
 def test_config_defaults():
-    cfg = TrackerConfig()
-    assert (cfg.decay, cfg.threshold, cfg.cell, cfg.min_hits, cfg.max_misses) == (0.6, 6.0, 8, 3, 5)
+    cfg = _TrackerConfig()
+    assert (cfg.decay, cfg.threshold, cfg.cell, cfg.min_hits, cfg.max_misses) == (0.6, 5.0, 8, 3, 5)
     assert cfg.peak_fraction == 0.3
-    assert (cfg.smoothing, cfg.match_iou, cfg.score_gain) == (0.3, 0.2, 1.0)
+    assert (cfg.smoothing, cfg.match_iou, cfg.score_gain) == (0.5, 0.2, 1.0)
+    assert cfg.window_inset == (-0.05, 0.05, -0.05, 0.15)
     assert cfg.min_size == (32.0, 32.0) and cfg.aspect_range == (0.3, 4.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.decay = 0.5  # type: ignore[misc]
@@ -162,7 +172,7 @@ def test_int_box_rounds_halves_up():
 # --------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("n_windows, score", [(1, 0.0), (3, 1.0), (12, 4.0)])
 def test_one_frame_false_positive_is_never_reported(n_windows, score):
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     burst = car_windows([200, 500, 296, 596], offsets=[(8 * (k % 4), 8 * (k // 4)) for k in range(n_windows)])
     assert update(tr, burst, np.full(n_windows, score), SHAPE) == []
     for _ in range(15):
@@ -175,7 +185,7 @@ def test_one_frame_false_positive_is_never_reported(n_windows, score):
 def test_strong_burst_afterglow_stays_above_threshold():
     # The case the freshness rule exists for: 12 windows of heat 5 give 60; 60 * 0.7^k > 2.5 for
     # k <= 8, so blobs of pure afterglow are there, yet no track gets a second hit.
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     burst = car_windows([200, 500, 296, 596], offsets=[(8 * (k % 4), 8 * (k // 4)) for k in range(12)])
     update(tr, burst, np.full(12, 4.0), SHAPE)
     for _ in range(3):
@@ -187,7 +197,7 @@ def test_strong_burst_afterglow_stays_above_threshold():
 @pytest.mark.parametrize("origin", [(600, 400), (603, 405), (1000, 430)])
 def test_steady_jittering_car_is_confirmed_once_and_smoothed(origin):
     rng = np.random.default_rng(sum(origin))
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     x0, y0 = origin
     raw, reported, ids = [], [], set()
     for f in range(20):
@@ -210,7 +220,7 @@ def test_steady_jittering_car_is_confirmed_once_and_smoothed(origin):
 
 
 def test_car_that_disappears_coasts_then_is_retired():
-    tr = Tracker()  # max_misses = 5
+    tr = Tracker(TrackerConfig())  # max_misses = 5
     car = np.array([500, 420, 628, 516])
     for _ in range(10):
         out = update(tr, car_windows(car), np.ones(4), SHAPE)
@@ -229,7 +239,7 @@ def test_car_that_disappears_coasts_then_is_retired():
 
 
 def test_track_survives_short_detection_gap_with_same_id():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     car = np.array([500, 420, 628, 516])
     ids = []
     for f in range(20):
@@ -239,7 +249,7 @@ def test_track_survives_short_detection_gap_with_same_id():
 
 
 def test_two_cars_get_two_ids():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     ids: dict[str, set[int]] = {"a": set(), "b": set()}
     for f in range(12):
         cars = {
@@ -295,11 +305,11 @@ def test_returned_tracks_are_copies():
 @pytest.mark.parametrize("split", [1, 6, 12, 26, 39])
 def test_chunked_processing_equals_one_pass(split):
     frames = scenario()
-    whole = Tracker()
+    whole = Tracker(TrackerConfig())
     expected = [snapshot(update(whole, b, s, SHAPE)) for b, s in frames]
     assert any(len(e) == 2 for e in expected)  # the scenario does exercise two tracks
 
-    first = Tracker()
+    first = Tracker(TrackerConfig())
     got = [snapshot(update(first, b, s, SHAPE)) for b, s in frames[:split]]
     second = Tracker(TrackerConfig(), state=first.state)
     # The old tracker can go on independently without disturbing the new one.
@@ -311,7 +321,7 @@ def test_chunked_processing_equals_one_pass(split):
 
 
 def test_state_copy_is_deep():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     for b, s in scenario(12):
         update(tr, b, s, SHAPE)
     snap = tr.state.copy()
@@ -323,7 +333,7 @@ def test_state_copy_is_deep():
 
 
 def test_frame_shape_change_raises_and_keeps_state():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     update(tr, car_windows([500, 420, 628, 516]), np.ones(4), (720, 1280))  # (H, W) == (H, W, 3)
     update(tr, car_windows([500, 420, 628, 516]), np.ones(4), SHAPE)
     before = tr.state.copy()
@@ -345,21 +355,21 @@ def test_frame_shape_change_raises_and_keeps_state():
     ],
 )
 def test_update_rejects_bad_input(boxes, scores, shape, match):
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     with pytest.raises(ValueError, match=match):
         update(tr, boxes, scores, shape)
     assert tr.state.frame_index == 0
 
 
 def test_update_takes_detections_only():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     with pytest.raises(ValueError, match="Detections"):
         tr.update([[0, 0, 10, 10]], SHAPE)
     assert tr.state.frame_index == 0
 
 
 def test_state_must_fit_config():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     update(tr, [], [], SHAPE)
     with pytest.raises(ValueError, match="cell"):
         Tracker(TrackerConfig(cell=4), state=tr.state)
@@ -372,7 +382,7 @@ def test_state_must_fit_config():
 
 
 def test_reset_forgets_everything():
-    tr = Tracker()
+    tr = Tracker(TrackerConfig())
     for b, s in scenario(15):
         update(tr, b, s, SHAPE)
     assert tr.state.next_id > 0
@@ -408,3 +418,19 @@ def test_backfill_detections_name_the_earlier_frames():
     assert [len(f) for f in fills] == [0, 0, 2, 0]  # only on the confirmation frame
     assert fills[2].frame.tolist() == [0, 1]
     assert fills[2].track_id.tolist() == [found.track_id[0]] * 2
+
+
+def test_window_inset_moves_the_heat_inside_each_window():
+    """Heat goes to the inset part of each window: a car framed by windows that reach below it
+    gets a box that stops where the insets say."""
+    window = [[400, 400, 496, 496]]
+    plain = Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1, peak_fraction=0.0))
+    inset = Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1, peak_fraction=0.0, window_inset=(0.0, 0.0, 0.0, 1 / 3)))
+    (a,) = update(plain, window, None)
+    (b,) = update(inset, window, None)
+    np.testing.assert_array_equal(a.box, [400, 400, 496, 496])
+    np.testing.assert_array_equal(b.box, [400, 400, 496, 464])  # 96 - 32 rows
+    with pytest.raises(ValueError, match="window_inset"):
+        _TrackerConfig(window_inset=(0.0, 0.5, 0.0, 0.0))
+    with pytest.raises(ValueError, match="window_inset"):
+        _TrackerConfig(window_inset=(0.0, 0.1))

@@ -333,10 +333,11 @@ def _V1_DETECTOR_CONFIG() -> DetectorConfig:
         ),
         threshold=0.3,
         reference_height=720,
+        overhang=0.0,
     )
     tracker = TrackerConfig(
         decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
-        aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64),
+        aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
     )
     return DetectorConfig(plan=plan, tracker=tracker, image_threshold=2.0)
 

@@ -21,6 +21,7 @@ import numpy as np
 from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
+from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes
 from .search import search
 from .tracker import Tracker, window_heat
@@ -79,7 +80,7 @@ class Detector:
         h, w = frame_shape[:2]
         heat = np.zeros((h // cell, w // cell), np.float32)
         weights = window_heat(self._tracker_input(windows).score, self.config.tracker.score_gain)
-        return add_heat(heat, windows, weights, cell=cell)
+        return add_heat(heat, inset_boxes(windows.xyxy, self.config.tracker.window_inset), weights, cell=cell)
 
     def detect_image(self, image: np.ndarray) -> Detections:
         """Vehicles in one RGB ``uint8`` image ``(H, W, 3)``: one box per heat blob.

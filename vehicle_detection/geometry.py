@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "match_boxes"]
+__all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "inset_boxes", "match_boxes"]
 
 #: Coordinates beyond this are certainly errors (and would not fit 32-bit drawing code).
 MAX_COORD = 2**31 - 1
@@ -68,6 +68,37 @@ def as_boxes(boxes: ArrayLike, name: str = "boxes", *, integer: bool = False) ->
         i = int(bad[0])
         raise ValueError(f"{name}[{i}] = {arr[i].tolist()} has x2 < x1 or y2 < y1")
     return arr
+
+
+def inset_boxes(boxes: np.ndarray, inset: tuple[float, float, float, float]) -> np.ndarray:
+    """Boxes shrunk by fractions of their size (negative fractions grow them), whole pixels.
+
+    Parameters
+    ----------
+    boxes : ndarray, shape (n, 4)
+    inset : (left, top, right, bottom)
+        Fractions of each box's width (left, right) and height (top, bottom) to cut off; the
+        two of an axis add up to less than 1, so that no box vanishes.
+
+    Returns
+    -------
+    ndarray of int64, shape (n, 4)
+
+    Examples
+    --------
+    >>> inset_boxes(np.array([[0, 0, 100, 50]]), (0.0, 0.1, 0.0, 0.2))
+    array([[  0,   5, 100,  40]])
+    """
+    left, top, right, bottom = (float(v) for v in inset)
+    if not (left + right < 1 and top + bottom < 1):
+        raise ValueError(f"insets of an axis must add up to less than 1; got {inset}")
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    w = b[:, 2] - b[:, 0]
+    h = b[:, 3] - b[:, 1]
+    out = np.rint(np.stack([b[:, 0] + left * w, b[:, 1] + top * h, b[:, 2] - right * w, b[:, 3] - bottom * h], axis=1)).astype(np.int64)
+    out[:, 2] = np.maximum(out[:, 2], out[:, 0] + 1)  # at least one pixel
+    out[:, 3] = np.maximum(out[:, 3], out[:, 1] + 1)
+    return out
 
 
 def box_area(boxes: np.ndarray) -> np.ndarray:

@@ -66,7 +66,11 @@ class SearchScale:
         End column (None: the frame's right edge).
     step : int
         Window step in HOG cells (of the scaled image): with 8-pixel cells and scale 1.5,
-        ``step=2`` moves windows by 24 frame pixels.
+        ``step=2`` moves windows by 24 frame pixels (horizontally ``aspect`` times that).
+    aspect : float
+        Window width over height: 1.5 searches windows ``96 x 64`` at scale 1, squeezed to the
+        model's square patch. Vehicles seen on the road are wider than tall, while the training
+        patches frame each vehicle edge to edge; wide windows fit them.
     """
 
     scale: float
@@ -75,10 +79,13 @@ class SearchScale:
     x_start: int = 0
     x_stop: int | None = None
     step: int = 2
+    aspect: float = 1.0
 
     def __post_init__(self):
         if not self.scale > 0:
             raise ValueError(f"scale must be positive, got {self.scale}")
+        if not 0.25 <= self.aspect <= 4:
+            raise ValueError(f"aspect must be within 0.25..4, got {self.aspect}")
         if self.y_stop <= self.y_start or self.y_start < 0 or self.x_start < 0:
             raise ValueError(f"empty or negative search band y {self.y_start}..{self.y_stop}")
         if self.x_stop is not None and self.x_stop <= self.x_start:
@@ -107,11 +114,15 @@ class SearchPlan:
         Minimum SVM margin of a window reported as a detection.
     reference_height : int
         Frame height the bands are written for; other frames are resized to it.
+    overhang : float
+        Fraction of a window's width that may lie beyond the left or right frame edge, in
+        ``[0, 1)``: the frame is mirrored there, and boxes are clipped to the frame.
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
     threshold: float = 0.3
     reference_height: int = 720
+    overhang: float = 0.5
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
@@ -119,24 +130,28 @@ class SearchPlan:
             raise ValueError("a search plan needs at least one scale")
         if self.reference_height < 64:
             raise ValueError("reference_height must be at least 64")
+        if not 0.0 <= self.overhang < 1.0:
+            raise ValueError(f"overhang must be in [0, 1), got {self.overhang}")
 
     def to_dict(self) -> dict:
         return {
             "scales": [dict(vars(s)) for s in self.scales],
             "threshold": self.threshold,
             "reference_height": self.reference_height,
+            "overhang": self.overhang,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> SearchPlan:
         """The inverse of :meth:`to_dict`; a malformed plan raises ``ValueError``."""
         try:
-            if set(d) != {"scales", "threshold", "reference_height"}:
+            if set(d) != {"scales", "threshold", "reference_height", "overhang"}:
                 raise ValueError(f"fields {sorted(d)}")
             return cls(
                 scales=tuple(SearchScale(**s) for s in d["scales"]),
                 threshold=float(d["threshold"]),
                 reference_height=int(d["reference_height"]),
+                overhang=float(d["overhang"]),
             )
         except (TypeError, KeyError, ValueError) as exc:
             raise ValueError(f"malformed search plan: {exc}") from None
@@ -229,15 +244,22 @@ def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, flo
     return resized, f
 
 
-def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig) -> _Band | None:
+def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: float = 0.0) -> _Band | None:
     h, w = frame.shape[:2]
     x0, x1 = min(s.x_start, w), min(s.x_stop if s.x_stop is not None else w, w)
     y0, y1 = min(s.y_start, h), min(s.y_stop, h)
     side = config.window
-    if (x1 - x0) < side * s.scale or (y1 - y0) < side * s.scale:
+    if (x1 - x0) < side * s.scale * s.aspect or (y1 - y0) < side * s.scale:
         return None
     region = frame[y0:y1, x0:x1]
-    nw, nh = round((x1 - x0) / s.scale), round((y1 - y0) / s.scale)
+    # Windows may overhang the left and right frame edges (mirrored pixels beyond them), so a
+    # vehicle cut by the edge still has windows that frame it.
+    pad = round(overhang * side * s.scale * s.aspect)
+    left, right = (pad if x0 == 0 else 0), (pad if x1 == w else 0)
+    if left or right:
+        region = cv2.copyMakeBorder(region, 0, 0, left, right, cv2.BORDER_REFLECT_101)
+        x0, x1 = x0 - left, x1 + right
+    nw, nh = round((x1 - x0) / (s.scale * s.aspect)), round((y1 - y0) / s.scale)
     scaled = region if (nw, nh) == (x1 - x0, y1 - y0) else cv2.resize(region, (nw, nh), interpolation=cv2.INTER_AREA)
     ppc, cpw = config.pixels_per_cell, config.cells_per_window
     n_cr, n_cc = nh // ppc, nw // ppc
@@ -248,13 +270,15 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig) -> _Band | N
     return _Band(np.ascontiguousarray(scaled), x0, y0, (x1 - x0) / nw, (y1 - y0) / nh, rows, cols)
 
 
-def _band_boxes(band: _Band, config: FeatureConfig, f: float) -> np.ndarray:
+def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...]) -> np.ndarray:
+    """The band's windows in the input frame's pixels, clipped to the frame."""
     ppc, side = config.pixels_per_cell, config.window
     yy, xx = np.meshgrid(band.rows * ppc, band.cols * ppc, indexing="ij")
     x1 = band.x0 + xx.ravel() * band.sx
     y1 = band.y0 + yy.ravel() * band.sy
-    boxes = np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f
-    return np.rint(boxes).astype(np.int64)
+    boxes = np.rint(np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f).astype(np.int64)
+    h, w = frame_shape[:2]
+    return np.clip(boxes, 0, [w, h, w, h])
 
 
 def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[np.ndarray]:
@@ -270,8 +294,8 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
     dummy = np.zeros((plan.reference_height, max(1, round(w * f)), 3), np.uint8)
     out = []
     for s in plan.scales:
-        band = _band(dummy, s, config)
-        out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f))
+        band = _band(dummy, s, config, plan.overhang)
+        out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f, frame_shape))
     return out
 
 
@@ -293,14 +317,14 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan |
     side, ppc = cfg.window, cfg.pixels_per_cell
     parts = []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg)
+        band = _band(work, s, cfg, plan.overhang)
         if band is None:
             continue
         patches = np.stack(
             [band.image[r * ppc : r * ppc + side, c * ppc : c * ppc + side] for r in band.rows for c in band.cols]
         )
         scores = model.decision_function(extract_features(patches, cfg))
-        parts.append(_windows(_band_boxes(band, cfg, f), scores, k))
+        parts.append(_windows(_band_boxes(band, cfg, f, frame.shape), scores, k))
     return Detections.concatenate(parts)
 
 
@@ -510,10 +534,10 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None 
     cfg = model.config
     parts = []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg)
+        band = _band(work, s, cfg, plan.overhang)
         if band is None:
             continue
         scores = _score_band(band, model)
         keep = slice(None) if all_windows else scores > plan.threshold
-        parts.append(_windows(_band_boxes(band, cfg, f)[keep], scores[keep], k))
+        parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
     return Detections.concatenate(parts)

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .detections import Detections
-from .geometry import box_iou, match_boxes
+from .geometry import box_iou, inset_boxes, match_boxes
 from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat
 
 __all__ = [
@@ -54,7 +54,7 @@ class TrackerConfig:
         ``integrated = decay * integrated + current``. 0 uses the current frame only; 1 is
         refused (heat would never fade). A car covered by heat ``h`` every frame settles at
         ``h / (1 - decay)``.
-    threshold : float, default 6.0
+    threshold : float, default 5.0
         Integrated heat a cell must exceed to belong to a blob, finite and >= 0.
     cell : int, default 8
         Heat-map cell side in frame pixels, >= 1.
@@ -64,7 +64,7 @@ class TrackerConfig:
     max_misses : int, default 5
         Consecutive unmatched frames a track survives; it is retired on miss ``max_misses + 1``.
         >= 0.
-    smoothing : float, default 0.3
+    smoothing : float, default 0.5
         Weight of the new blob box in a matched track's box,
         ``box = (1 - smoothing) * box + smoothing * blob``, in ``(0, 1]`` (1: no smoothing).
     match_iou : float, default 0.2
@@ -83,6 +83,12 @@ class TrackerConfig:
     score_gain : float, default 1.0
         Heat of a window is ``1 + score_gain * max(score, 0)``, finite and >= 0; 0 makes every
         window count 1 whatever its margin.
+    window_inset : (float, float, float, float), default (-0.05, 0.05, -0.05, 0.15)
+        A window adds its heat to its box inset by these fractions (left, top, right, bottom)
+        of its width and height, each in ``(-0.5, 0.5)``: where the classifier puts the
+        vehicle inside the windows it accepts. Square windows that take in a vehicle wider
+        than tall reach above and below it, and heat over their whole height would make boxes
+        too tall.
 
     Raises
     ------
@@ -91,17 +97,18 @@ class TrackerConfig:
     """
 
     decay: float = 0.6
-    threshold: float = 6.0
+    threshold: float = 5.0
     cell: int = 8
     min_hits: int = 3
     max_misses: int = 5
-    smoothing: float = 0.3
+    smoothing: float = 0.5
     match_iou: float = 0.2
     min_size: tuple[float, float] = (32, 32)
     aspect_range: tuple[float, float] = (0.3, 4.0)
     score_gain: float = 1.0
     peak_fraction: float = 0.3
     split_size: tuple[float, float] = (64, 64)
+    window_inset: tuple[float, float, float, float] = (-0.05, 0.05, -0.05, 0.15)
 
     def __post_init__(self) -> None:
         def real(name: str, ok, rule: str) -> None:
@@ -131,6 +138,13 @@ class TrackerConfig:
             object.__setattr__(self, "split_size", _check_min_size(self.split_size))
         except ValueError as exc:
             raise ValueError(f"TrackerConfig.{exc}") from None
+        try:
+            inset = tuple(float(v) for v in self.window_inset)
+        except (TypeError, ValueError):
+            inset = ()
+        if len(inset) != 4 or not all(-0.5 < v < 0.5 for v in inset):
+            raise ValueError(f"TrackerConfig.window_inset must be 4 numbers (left, top, right, bottom) in (-0.5, 0.5); got {self.window_inset!r}")
+        object.__setattr__(self, "window_inset", inset)
 
     def to_dict(self) -> dict:
         """Plain JSON data (pairs as lists)."""
@@ -399,7 +413,7 @@ class Tracker:
                 f"frame_shape {hw} differs from the earlier frames' {st.frame_shape}; "
                 "use a new Tracker (or reset()) for another video"
             )
-        win = detections.xyxy
+        win = inset_boxes(detections.xyxy, cfg.window_inset)
         weights = window_heat(detections.score, cfg.score_gain)
 
         # 1-2. Heat of this frame, integrated.
