@@ -78,6 +78,17 @@ def test_notebook_paths_default(tmp_path, monkeypatch):
     assert p.output.is_dir()
 
 
+def test_notebook_paths_shared_data_beside_the_checkout(tmp_path, monkeypatch):
+    nb = tmp_path / "repo" / "notebooks"
+    nb.mkdir(parents=True)
+    (tmp_path / "shared" / "data").mkdir(parents=True)
+    monkeypatch.delenv("VEHICLE_DETECTION_DATA", raising=False)
+    monkeypatch.delenv(plots.OUTPUT_ENV, raising=False)
+    p = plots.notebook_paths(nb)
+    assert p.data == (tmp_path / "shared" / "data").resolve()
+    assert str(p) == "repository repo/, data ../shared/data, output output_images"
+
+
 def test_notebook_paths_from_environment(tmp_path, monkeypatch):
     monkeypatch.setenv("VEHICLE_DETECTION_DATA", str(tmp_path / "d"))
     monkeypatch.setenv(plots.OUTPUT_ENV, str(tmp_path / "o"))
@@ -106,6 +117,16 @@ def test_save_figure_photo_is_quantised_keeping_accent_colours(tmp_path):
     assert (0, 255, 0) in colours  # the box colour survives exactly
 
 
+def test_save_figure_show_displays_the_file_and_closes_the_figure(tmp_path, capsys):
+    fig, ax = plt.subplots(figsize=(3, 2))
+    ax.plot([0, 1], [0, 1])
+    plots.save_figure(fig, tmp_path / "line.png")  # not in a kernel: nothing shown, figure kept
+    assert plt.fignum_exists(fig.number) and capsys.readouterr().out == ""
+    plots.save_figure(fig, tmp_path / "line.png", show=True)
+    assert not plt.fignum_exists(fig.number)
+    assert "Image" in capsys.readouterr().out  # IPython's display() outside a kernel prints the repr
+
+
 def test_markdown_table():
     text = plots.markdown_table(
         [{"a": "x", "b": 0.12345, "c": [0, 1]}, {"a": "y", "b": 1.0, "c": (2,)}],
@@ -132,7 +153,7 @@ def test_counts_figure():
 def test_feature_figures(tmp_path):
     patches = {"vehicle": patch(), "non-vehicle": patch()}
     figs = [
-        plots.color_space_figure(patches, COLOR_SPACES),
+        plots.color_space_figure(patches),  # every colour space
         plots.hog_figure(patches, CFG),
         plots.hog_parameters_figure(patches["vehicle"], [FeatureConfig(signed=False, orientations=9), CFG]),
         plots.spatial_bins_figure(patches, CFG),
@@ -161,6 +182,15 @@ def test_classifier_figures():
     assert "90\n90.0%" in texts and "5\n5.0%" in texts
 
 
+def test_search_plan_table():
+    lines = plots.search_plan_table((180, 320, 3), PLAN, CFG).splitlines()
+    assert lines[0] == "| scale | window (px) | rows searched | step (px) | overlap | windows |"
+    assert lines[2].startswith("| 1 | 64 | 40-120 | 16 | 75.0% | ")
+    assert lines[3].startswith("| 2 | 128 | 40-180 | 32 | 75.0% | ")
+    n = [int(line.rsplit("|", 2)[1].replace(",", "")) for line in lines[2:]]
+    assert lines[-1].startswith("| all |") and n[-1] == sum(n[:-1]) > 0
+
+
 def test_window_grid_figure():
     fig = plots.window_grid_figure(frame(), PLAN, CFG, rows=(20, 180))
     assert len(fig.axes) == 2
@@ -174,6 +204,8 @@ def test_detection_stages_and_boxes_grid(tmp_path):
     result = Detections([[16, 48, 96, 112]], score=[3.0])
     fig = plots.detection_stages_figure([("a", f, windows(), result), ("b", f, windows(0), Detections.empty())], det, rows=(40, 180))
     assert len(fig.axes) == 8
+    # a frame without hot windows: the search returns Detections without a scale_index column
+    plots.detection_stages_figure([("c", f, Detections.empty(), Detections.empty())], det)
     assert fig.axes[0].texts[-1].get_text() == "3 windows"
     png_ok(plots.save_figure(fig, tmp_path / "stages.png"))
     fig = plots.boxes_grid_figure([("a", f, result.xyxy), ("b", f, np.zeros((0, 4)))], ncols=3)

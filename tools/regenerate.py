@@ -1,11 +1,20 @@
 """Execute every notebook headless, top to bottom, rebuilding the figures and videos in output_images/.
 
-    python tools/regenerate.py                    # all notebooks, in order
+    python tools/regenerate.py --in-place         # all notebooks; write their outputs back (commit them)
+    python tools/regenerate.py                    # all notebooks; the notebooks on disk are left as they are
     python tools/regenerate.py 03 05              # only those whose name starts with 03 or 05
     python tools/regenerate.py --max-frames 40    # only the first 40 frames of the project clip
 
+The notebooks in ``notebooks/`` are the source and are committed with their outputs (figures as
+PNG, so they render on GitHub). ``--in-place`` writes each executed notebook back over itself,
+once it has run without error; cell execution timestamps and the Python version are dropped so
+that a re-run changes only what the cells print and draw. ``--executed DIR`` saves the executed
+copies in another folder instead (also on failure, for the traceback).
+
 Each notebook runs in a fresh ``python3`` kernel with ``notebooks/`` as its working directory
-(nbclient), a time limit per cell, and these environment variables:
+(nbclient), a time limit per cell, this checkout first on ``PYTHONPATH`` (so the kernel imports
+this checkout's ``vehicle_detection``, not another installed copy), and these environment
+variables:
 
 * ``VEHICLE_DETECTION_DATA``: kept if set, else ``../shared/data`` beside the checkout when it
   exists, else the repository's ``data/``;
@@ -13,9 +22,7 @@ Each notebook runs in a fresh ``python3`` kernel with ``notebooks/`` as its work
   ``output_images/``);
 * ``VD_MAX_FRAMES``: ``--max-frames`` if given.
 
-The notebooks on disk are not modified (they are committed without outputs; see
-``tools/make_notebooks.py``); ``--executed DIR`` saves the executed copies there. Prints each
-notebook and its time; exits 1 and prints the failing cell's error if a cell fails.
+Prints each notebook and its time; exits 1 and prints the failing cell's error if a cell fails.
 """
 
 from __future__ import annotations
@@ -40,8 +47,25 @@ def data_dir() -> Path:
     return shared if shared.is_dir() else REPO / "data"
 
 
-def run_notebook(path: Path, *, timeout: int = 1200, env: dict[str, str] | None = None, executed: Path | None = None) -> float:
+def clean(nb) -> None:
+    """Drop what changes on every run without saying anything: execution timestamps, the Python version."""
+    nb.metadata.get("language_info", {}).pop("version", None)
+    for cell in nb.cells:
+        cell.metadata.pop("execution", None)
+
+
+def run_notebook(
+    path: Path,
+    *,
+    timeout: int = 1200,
+    env: dict[str, str] | None = None,
+    executed: Path | None = None,
+    in_place: bool = False,
+) -> float:
     """Execute one notebook in its folder; return the seconds taken.
+
+    ``executed``: also write the executed notebook into this folder (even when a cell fails).
+    ``in_place``: write it back over ``path`` once every cell has run.
 
     Raises
     ------
@@ -53,6 +77,7 @@ def run_notebook(path: Path, *, timeout: int = 1200, env: dict[str, str] | None 
 
     saved = dict(os.environ)
     os.environ.update(env or {})
+    os.environ["PYTHONPATH"] = os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])
     try:
         nb = nbformat.read(path, as_version=4)
         client = NotebookClient(
@@ -65,9 +90,15 @@ def run_notebook(path: Path, *, timeout: int = 1200, env: dict[str, str] | None 
         try:
             client.execute()
         finally:
+            clean(nb)
             if executed is not None:
                 executed.mkdir(parents=True, exist_ok=True)
                 nbformat.write(nb, executed / path.name)
+        if in_place:
+            nbformat.validate(nb)
+            tmp = path.with_name(path.name + ".partial")
+            nbformat.write(nb, tmp)
+            tmp.replace(path)
         return time.perf_counter() - t
     finally:
         os.environ.clear()
@@ -77,6 +108,7 @@ def run_notebook(path: Path, *, timeout: int = 1200, env: dict[str, str] | None 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("only", nargs="*", help="run only notebooks whose name starts with one of these")
+    ap.add_argument("--in-place", action="store_true", help="write the outputs back into notebooks/ (what is committed)")
     ap.add_argument("--timeout", type=int, default=1200, help="seconds per cell (default %(default)s)")
     ap.add_argument("--max-frames", type=int, default=None, help="frames of the project clip to process (default: all)")
     ap.add_argument("--output-dir", default=None, help="where figures go (default: output_images/)")
@@ -98,16 +130,25 @@ def main(argv=None) -> int:
         env["VD_MAX_FRAMES"] = str(args.max_frames)
     out = env.get("VD_OUTPUT_DIR", str(REPO / "output_images"))
     print(f"data: {env['VEHICLE_DETECTION_DATA']}\noutput: {out}", flush=True)
+    if args.in_place and args.max_frames:
+        print("note: --in-place with --max-frames writes the outputs of a partial run into the notebooks", flush=True)
     total = time.perf_counter()
     for path in notebooks:
         print(f"running {path.name}", flush=True)
         try:
-            seconds = run_notebook(path, timeout=args.timeout, env=env, executed=Path(args.executed) if args.executed else None)
+            seconds = run_notebook(
+                path,
+                timeout=args.timeout,
+                env=env,
+                executed=Path(args.executed) if args.executed else None,
+                in_place=args.in_place,
+            )
         except CellExecutionError as exc:
-            print(f"FAILED: {path.name}", flush=True)
+            print(f"FAILED: {path.name}" + (" (left unchanged)" if args.in_place else ""), flush=True)
             print(re.sub(r"\x1b\[[0-9;]*m", "", str(exc)), file=sys.stderr)  # without the terminal colours
             return 1
-        print(f"{path.name}: {seconds:.1f} s", flush=True)
+        size = f", {path.stat().st_size / 1e6:.2f} MB" if args.in_place else ""
+        print(f"{path.name}: {seconds:.1f} s{size}", flush=True)
     print(f"all {len(notebooks)} notebooks in {time.perf_counter() - total:.1f} s")
     return 0
 

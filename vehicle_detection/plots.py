@@ -7,15 +7,16 @@ detected: these are views of the package's results.
 
 Paths for notebooks (:func:`notebook_paths`): a notebook runs with its own folder
 (``notebooks/``) as the working directory; the repository is its parent. The training data are
-found with :func:`vehicle_detection.data.default_data_dir` when ``$VEHICLE_DETECTION_DATA`` is
-set, else in the repository's ``data/``; figures go to ``$VD_OUTPUT_DIR``, else to the
-repository's ``output_images/``.
+found as the tests find them: ``$VEHICLE_DETECTION_DATA`` when set, else ``../shared/data``
+beside the checkout when it exists, else the repository's ``data/``; figures go to
+``$VD_OUTPUT_DIR``, else to the repository's ``output_images/``.
 """
 
 from __future__ import annotations
 
 import io
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +43,7 @@ __all__ = [
     "accuracy_figure",
     "sweep_figure",
     "confusion_figure",
+    "search_plan_table",
     "window_grid_figure",
     "detection_stages_figure",
     "boxes_grid_figure",
@@ -55,8 +57,8 @@ __all__ = [
 
 #: Environment variable naming the folder figures are written to.
 OUTPUT_ENV = "VD_OUTPUT_DIR"
-#: PNGs above this size are re-encoded with a 256-colour palette.
-PNG_BUDGET = 250_000
+#: PNGs above this size are re-encoded with a 256-colour palette (photographs; most plots stay below).
+PNG_BUDGET = 100_000
 
 # Colours (matplotlib names) used throughout, so every figure reads the same way.
 CAR_COLOR = "tab:blue"
@@ -90,9 +92,22 @@ class NotebookPaths:
     data: Path
     output: Path
 
+    def __str__(self) -> str:
+        def show(path: Path) -> str:
+            try:
+                return os.path.relpath(path, self.repo)
+            except ValueError:  # another drive (Windows)
+                return str(path)
+
+        return f"repository {self.repo.name}/, data {show(self.data)}, output {show(self.output)}"
+
 
 def notebook_paths(notebook_dir: str | os.PathLike | None = None) -> NotebookPaths:
     """The repository, data and output folders, seen from a notebook's folder.
+
+    Data: ``$VEHICLE_DETECTION_DATA``, else ``../shared/data`` beside the checkout when it
+    exists, else the repository's ``data/``. Output: ``$VD_OUTPUT_DIR``, else
+    ``output_images/``.
 
     Parameters
     ----------
@@ -104,18 +119,23 @@ def notebook_paths(notebook_dir: str | os.PathLike | None = None) -> NotebookPat
 
     nb = Path(notebook_dir) if notebook_dir is not None else Path.cwd()
     repo = nb.resolve().parent
-    data = default_data_dir() if os.environ.get(DATA_ENV) else repo / "data"
+    shared = repo.parent / "shared" / "data"
+    data = default_data_dir() if os.environ.get(DATA_ENV) else shared if shared.is_dir() else repo / "data"
     out = Path(os.environ.get(OUTPUT_ENV) or repo / "output_images")
     out.mkdir(parents=True, exist_ok=True)
     return NotebookPaths(repo=repo, data=Path(data).resolve(), output=out.resolve())
 
 
-def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100, budget: int = PNG_BUDGET) -> Path:
+def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100, budget: int = PNG_BUDGET, show: bool | None = None) -> Path:
     """Write a figure as a PNG, trimmed to its content; large ones get a 256-colour palette.
 
     Photographs make big truecolour PNGs; above ``budget`` bytes the picture is quantised to
     256 colours (median cut), which keeps plots crisp and frames recognisable at about a third
     of the size. The smaller of the two encodings is written.
+
+    With ``show`` (default: when running in a Jupyter kernel) the written PNG is displayed and
+    the figure closed, so a notebook shows, and stores, exactly the compact file instead of a
+    second, truecolour rendering of the figure.
 
     Returns
     -------
@@ -135,7 +155,20 @@ def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100, budget: int = P
         if len(small.getvalue()) < len(data):
             data = small.getvalue()
     path.write_bytes(data)
+    if show if show is not None else _in_kernel():
+        from IPython.display import Image as ShownImage
+        from IPython.display import display
+
+        display(ShownImage(data=data, format="png"))
+        plt.close(fig)
     return path
+
+
+def _in_kernel() -> bool:
+    """Whether this runs in a Jupyter (IPython) kernel, where figures display inline."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None else None
+    return getattr(shell, "kernel", None) is not None
 
 
 def _quantize(img):
@@ -290,10 +323,15 @@ def counts_figure(counts: Mapping[str, int], *, duplicates: Mapping[str, int] | 
 # --- features -----------------------------------------------------------------------------------
 
 
-def color_space_figure(patches: Mapping[str, np.ndarray], color_spaces: Sequence[str]):
-    """Each channel of each patch in each colour space: one row per space, grey levels 0-255."""
-    from .features import convert_color
+def color_space_figure(patches: Mapping[str, np.ndarray], color_spaces: Sequence[str] | None = None):
+    """Each channel of each patch in each colour space: one row per space, grey levels 0-255.
 
+    ``color_spaces`` defaults to every space :func:`~vehicle_detection.features.convert_color`
+    supports.
+    """
+    from .features import COLOR_SPACES, convert_color
+
+    color_spaces = COLOR_SPACES if color_spaces is None else color_spaces
     names = list(patches)
     ncols = 1 + 3 * len(names)
     fig, axes = _grid(len(color_spaces), ncols, 1.05, 1.1)
@@ -309,7 +347,7 @@ def color_space_figure(patches: Mapping[str, np.ndarray], color_spaces: Sequence
                 ax.set_xticks([])
                 ax.set_yticks([])
                 ax.set_title(f"{name} {_channel_names(space)[c]}", fontsize=7)
-    fig.suptitle("Channels of a vehicle and a non-vehicle patch in six colour spaces (8-bit OpenCV conventions)", fontsize=9)
+    fig.suptitle(f"Channels of each patch in {len(color_spaces)} colour spaces (8-bit OpenCV conventions)", fontsize=9)
     return fig
 
 
@@ -566,6 +604,27 @@ def confusion_figure(confusion: Mapping[str, int], *, title: str = ""):
 # --- sliding windows ----------------------------------------------------------------------------
 
 
+def search_plan_table(frame_shape, plan, config) -> str:
+    """A Markdown table of a search plan on frames of ``frame_shape``: one row per scale, and the total.
+
+    Columns: scale, window side, rows searched, step, overlap of neighbouring windows, windows
+    (:func:`~vehicle_detection.search.plan_windows`), all in the frame's pixels.
+    """
+    from .search import plan_windows
+
+    grids = plan_windows(frame_shape, plan, config)
+    f = frame_shape[0] / plan.reference_height
+    rows = []
+    for s, boxes in zip(plan.scales, grids):
+        side = config.window * s.scale * f
+        step = s.step * config.pixels_per_cell * s.scale * f
+        rows.append({"scale": f"{s.scale:g}", "px": f"{side:.0f}", "rows": f"{s.y_start * f:.0f}-{s.y_stop * f:.0f}",
+                     "step": f"{step:.0f}", "overlap": f"{max(0.0, 1 - step / side):.1%}", "n": f"{len(boxes):,}"})
+    rows.append({"scale": "all", "px": "", "rows": "", "step": "", "overlap": "", "n": f"{sum(len(b) for b in grids):,}"})
+    return markdown_table(rows, [("scale", "scale", ""), ("px", "window (px)", ""), ("rows", "rows searched", ""),
+                                 ("step", "step (px)", ""), ("overlap", "overlap", ""), ("n", "windows", "")])
+
+
 def window_grid_figure(frame: np.ndarray, plan, config, *, ncols: int = 2, rows: tuple[int, int] | None = None):
     """One panel per search scale: its band, a tiling of its windows, and a few neighbours.
 
@@ -645,8 +704,9 @@ def detection_stages_figure(
         heat = detector.heat(frame.shape, wins)
         extent = (0, heat.shape[1] * cell, heat.shape[0] * cell, 0)
         _frame_ax(axes[r, 0], frame)
+        scale_index = wins.data.get("scale_index", np.zeros(len(wins), np.int64))  # absent when no window is hot
         for k in range(len(plan.scales)):
-            _boxes(axes[r, 0], wins.xyxy[wins.data["scale_index"] == k], color=SCALE_COLORS[k % len(SCALE_COLORS)], lw=0.7)
+            _boxes(axes[r, 0], wins.xyxy[scale_index == k], color=SCALE_COLORS[k % len(SCALE_COLORS)], lw=0.7)
         axes[r, 0].set_ylabel(name, fontsize=9)
         _frame_ax(axes[r, 1], frame, dim=0.35)
         peak = float(heat.max())
