@@ -74,6 +74,8 @@ def test_concatenate_fills_untracked_ids_and_keeps_common_data():
     assert c.frame.tolist() == [0, 3, 3]
     assert list(c.data) == ["s"] and c.data["s"].tolist() == [1, 5, 6]
     assert Detections.concatenate([]) == Detections.empty()
+    none = Detections.empty().replace(data={"s": np.zeros(0, np.int64)})
+    assert list(Detections.concatenate([none, none]).data) == ["s"]  # empty parts keep their columns
     assert Detections.concatenate([Detections.empty(tracked=True)]).track_id.tolist() == []
 
 

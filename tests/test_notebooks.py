@@ -62,10 +62,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_NOTEBOOK_BYTES = 1_500_000
 #: Package names the notebooks import from a module because ``vehicle_detection`` (``vd.``) does not
 #: export them yet. Export them, switch the notebooks to ``vd.<name>`` and shrink this list.
-NOT_YET_PUBLIC = {
-    "vehicle_detection.classifier": {"split_indices", "sweep"},
-    "vehicle_detection.data": {"find_duplicates"},
-}
+NOT_YET_PUBLIC: dict[str, set[str]] = {}
 
 
 def _load_tool(name: str):

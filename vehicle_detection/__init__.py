@@ -39,7 +39,11 @@ _API = {
     "load_model": "classifier",
     "load_default_model": "classifier",
     "train": "classifier",
+    "sweep": "classifier",
+    "sweep_configs": "classifier",
+    "split_indices": "classifier",
     "load_dataset": "data",
+    "find_duplicates": "data",
     # images, video, tables, drawing
     "read_image": "images",
     "write_image": "images",
@@ -54,7 +58,10 @@ _API = {
     # evaluation
     "load_annotations": "evaluate",
     "evaluate_detections": "evaluate",
+    "evaluation_report": "evaluate",
+    "average_precision": "evaluate",
     "match_frame": "evaluate",
+    "tracking_scores": "tracking_metrics",
 }
 
 __all__ = ["__version__", *_API]
@@ -74,17 +81,18 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
-    from .classifier import VehicleClassifier, load_default_model, load_model, train
+    from .classifier import VehicleClassifier, load_default_model, load_model, split_indices, sweep, sweep_configs, train
     from .config import DetectorConfig
-    from .data import load_dataset
+    from .data import find_duplicates, load_dataset
     from .detections import Detections
     from .detector import Detector
     from .drawing import draw_boxes, draw_detections
-    from .evaluate import evaluate_detections, load_annotations, match_frame
+    from .evaluate import average_precision, evaluate_detections, evaluation_report, load_annotations, match_frame
     from .features import FeatureConfig, extract_features
     from .geometry import box_iou, match_boxes
     from .images import list_images, read_image, write_image
     from .search import SearchPlan, SearchScale, search
     from .tracker import Tracker, TrackerConfig
     from .tables import read_boxes_csv, write_boxes_csv
+    from .tracking_metrics import tracking_scores
     from .video import VideoWriter, probe_video, process_video, read_frames

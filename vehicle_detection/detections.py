@@ -140,15 +140,17 @@ class Detections:
         """The rows of several :class:`Detections`, in order.
 
         The result is tracked if any part is (the rows of untracked parts get ``-1``) and keeps
-        the ``data`` columns that every non-empty part has.
+        the ``data`` columns that every part with rows has (every part, when none has rows).
         """
         parts = list(parts)
-        rows = [p for p in parts if len(p)]
-        if not rows:
-            return cls.empty(tracked=any(p.track_id is not None for p in parts))
-        if len(rows) == 1 and len(parts) == 1:
-            return rows[0]
         tracked = any(p.track_id is not None for p in parts)
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return cls.empty()
+        # Columns that every part with rows has; with no rows at all, that every part has (the
+        # windows of a frame without any keep their scale_index column).
+        rows = [p for p in parts if len(p)] or parts
         keys = set.intersection(*(set(p.data) for p in rows))
         return cls(
             np.concatenate([p.xyxy for p in rows]),
@@ -159,6 +161,7 @@ class Detections:
             frame=np.concatenate([p.frame for p in rows]),
             data={k: np.concatenate([p.data[k] for p in rows]) for k in sorted(keys)},
         )
+
 
     def replace(self, **changes: Any) -> Detections:
         """A copy with some fields replaced, e.g. ``d.replace(frame=7)``."""

@@ -82,15 +82,21 @@ class Detector:
         weights = window_heat(self._tracker_input(windows).score, self.config.tracker.score_gain)
         return add_heat(heat, inset_boxes(windows.xyxy, self.config.tracker.window_inset), weights, cell=cell)
 
-    def detect_image(self, image: np.ndarray) -> Detections:
+    def detect_image(self, image: np.ndarray, windows: Detections | None = None) -> Detections:
         """Vehicles in one RGB ``uint8`` image ``(H, W, 3)``: one box per heat blob.
+
+        Parameters
+        ----------
+        image : ndarray of uint8, shape (H, W, 3)
+        windows : Detections, optional
+            The image's hot windows when already computed (:meth:`windows`), to search once.
 
         Returns
         -------
         Detections
             One box per vehicle with the peak heat of its blob as ``score``; untracked.
         """
-        wins = self.windows(image)
+        wins = self.windows(image) if windows is None else windows
         heat = self.heat(image.shape, wins)
         cfg = self.config.tracker
         boxes, peaks = heat_to_boxes(

@@ -325,7 +325,7 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan |
         )
         scores = model.decision_function(extract_features(patches, cfg))
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape), scores, k))
-    return Detections.concatenate(parts)
+    return Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
 
 
 # --- the fast path -----------------------------------------------------------------------------
@@ -540,4 +540,4 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None 
         scores = _score_band(band, model)
         keep = slice(None) if all_windows else scores > plan.threshold
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
-    return Detections.concatenate(parts)
+    return Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
