@@ -156,3 +156,16 @@ def test_windows_overhang_the_frame_edges(default_model, test_frames):
     assert widths.min() <= 64 + 8 and widths.max() == 128  # half a 128 px window cut off at most
     assert wins.xyxy[:, 0].min() == 0 and wins.xyxy[:, 2].max() == frame.shape[1]
     np.testing.assert_allclose(search_plain(frame, default_model, plan).score, wins.score, atol=1e-6)
+
+
+def test_horizon_moves_every_band_together(default_model):
+    plan = SearchPlan(scales=(SearchScale(1.0, 400, 496), SearchScale(2.0, 420, 592)), overhang=0.0)
+    frame = np.zeros((720, 1280, 3), np.uint8)
+    base = np.concatenate(plan_windows(frame.shape, plan, default_model.config))
+    higher = SearchPlan(scales=plan.scales, overhang=0.0, horizon=0.5)  # top of the bands at row 360
+    assert higher.y_shift == -40
+    moved = np.concatenate(plan_windows(frame.shape, higher, default_model.config))
+    np.testing.assert_array_equal(moved, base + [0, -40, 0, -40])
+    assert SearchPlan.from_dict(higher.to_dict()) == higher
+    with pytest.raises(ValueError, match="horizon"):
+        SearchPlan(horizon=1.2)

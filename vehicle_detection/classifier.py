@@ -334,6 +334,7 @@ def _V1_DETECTOR_CONFIG() -> DetectorConfig:
         threshold=0.3,
         reference_height=720,
         overhang=0.0,
+        horizon=None,
     )
     tracker = TrackerConfig(
         decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),

@@ -12,6 +12,7 @@ Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -41,6 +42,16 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {text!r}")
     return value
 
 
@@ -141,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="annotated output (default: next to the input, *_detected)")
     p.add_argument("--boxes", default=None, help="CSV of boxes (default: next to the input, *_boxes.csv)")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
+    p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
+                   help="where the road meets the horizon, as a fraction of the frame height from the top "
+                   "(default: the model's search plan, made for the project camera: 0.56)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs (never the input)")
     p.add_argument("--preset", default="ultrafast", choices=X264_PRESETS, metavar="PRESET",
                    help="x264 speed preset for videos: %(choices)s (default %(default)s: fastest, larger files)")
@@ -161,6 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--video", default=None, help="the labelled video or image folder, instead of the one the labels name")
     source.add_argument("--boxes", default=None, help="score this boxes CSV instead of running the detector")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
+    p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
+                   help="where the road meets the horizon, as a fraction of the frame height from the top "
+                   "(default: the model's search plan, made for the project camera: 0.56)")
     p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
@@ -294,11 +311,15 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
-def _load_detector(model_path):
-    from .classifier import VehicleClassifier
+def _load_detector(model_path, horizon: float | None = None):
+    from .classifier import VehicleClassifier, load_default_model
     from .detector import Detector
 
-    return Detector(VehicleClassifier.load(model_path)) if model_path else Detector()
+    model = VehicleClassifier.load(model_path) if model_path else load_default_model()
+    config = model.detector_config
+    if horizon is not None:
+        config = config.replace(plan=dataclasses.replace(config.plan, horizon=horizon))
+    return Detector(model, config)
 
 
 def _default_outputs(inp: Path, kind: str):
@@ -347,7 +368,7 @@ def _cmd_detect(args) -> int:
     for o in (out, boxes):
         if kind != "folder" or o is boxes:
             check_output_path(o, overwrite=args.overwrite, inputs=[inp, *model_inputs])
-    detector = _load_detector(args.model)
+    detector = _load_detector(args.model, args.horizon)
     t = time.perf_counter()
     if kind == "video":
         table = process_video(
@@ -449,7 +470,7 @@ def _cmd_evaluate(args) -> int:
         raise UsageError("--boxes scores one CSV against one labels file")
     if args.video and len(all_labels) > 1:
         raise UsageError("--video applies to one labels file; with several, each names its own video")
-    detector = None if args.boxes else _load_detector(args.model)
+    detector = None if args.boxes else _load_detector(args.model, args.horizon)
     t = time.perf_counter()
     reports = {}
     for labels in all_labels:

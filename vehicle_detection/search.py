@@ -117,12 +117,18 @@ class SearchPlan:
     overhang : float
         Fraction of a window's width that may lie beyond the left or right frame edge, in
         ``[0, 1)``: the frame is mirrored there, and boxes are clipped to the frame.
+    horizon : float or None
+        Where the road meets the horizon, as a fraction of the frame height from the top: the
+        bands are moved up or down together so that the highest starts there. None keeps them
+        where they are written (the project camera's horizon, 400 / 720). Another camera,
+        mounted higher or tilted, sees its horizon elsewhere.
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
     threshold: float = 0.3
     reference_height: int = 720
     overhang: float = 0.5
+    horizon: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
@@ -132,6 +138,15 @@ class SearchPlan:
             raise ValueError("reference_height must be at least 64")
         if not 0.0 <= self.overhang < 1.0:
             raise ValueError(f"overhang must be in [0, 1), got {self.overhang}")
+        if self.horizon is not None and not 0.0 <= self.horizon < 1.0:
+            raise ValueError(f"horizon must be a fraction of the frame height in [0, 1), got {self.horizon}")
+
+    @property
+    def y_shift(self) -> int:
+        """Rows (at the reference height) the bands move to start at the horizon."""
+        if self.horizon is None:
+            return 0
+        return round(self.horizon * self.reference_height) - min(s.y_start for s in self.scales)
 
     def to_dict(self) -> dict:
         return {
@@ -139,19 +154,21 @@ class SearchPlan:
             "threshold": self.threshold,
             "reference_height": self.reference_height,
             "overhang": self.overhang,
+            "horizon": self.horizon,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> SearchPlan:
         """The inverse of :meth:`to_dict`; a malformed plan raises ``ValueError``."""
         try:
-            if set(d) != {"scales", "threshold", "reference_height", "overhang"}:
+            if set(d) != {"scales", "threshold", "reference_height", "overhang", "horizon"}:
                 raise ValueError(f"fields {sorted(d)}")
             return cls(
                 scales=tuple(SearchScale(**s) for s in d["scales"]),
                 threshold=float(d["threshold"]),
                 reference_height=int(d["reference_height"]),
                 overhang=float(d["overhang"]),
+                horizon=None if d["horizon"] is None else float(d["horizon"]),
             )
         except (TypeError, KeyError, ValueError) as exc:
             raise ValueError(f"malformed search plan: {exc}") from None
@@ -244,10 +261,10 @@ def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, flo
     return resized, f
 
 
-def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: float = 0.0) -> _Band | None:
+def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: float = 0.0, y_shift: int = 0) -> _Band | None:
     h, w = frame.shape[:2]
     x0, x1 = min(s.x_start, w), min(s.x_stop if s.x_stop is not None else w, w)
-    y0, y1 = min(s.y_start, h), min(s.y_stop, h)
+    y0, y1 = min(max(s.y_start + y_shift, 0), h), min(max(s.y_stop + y_shift, 0), h)
     side = config.window
     if (x1 - x0) < side * s.scale * s.aspect or (y1 - y0) < side * s.scale:
         return None
@@ -294,7 +311,7 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
     dummy = np.zeros((plan.reference_height, max(1, round(w * f)), 3), np.uint8)
     out = []
     for s in plan.scales:
-        band = _band(dummy, s, config, plan.overhang)
+        band = _band(dummy, s, config, plan.overhang, plan.y_shift)
         out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f, frame_shape))
     return out
 
@@ -317,7 +334,7 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan |
     side, ppc = cfg.window, cfg.pixels_per_cell
     parts = []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg, plan.overhang)
+        band = _band(work, s, cfg, plan.overhang, plan.y_shift)
         if band is None:
             continue
         patches = np.stack(
@@ -534,7 +551,7 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None 
     cfg = model.config
     parts = []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg, plan.overhang)
+        band = _band(work, s, cfg, plan.overhang, plan.y_shift)
         if band is None:
             continue
         scores = _score_band(band, model)
