@@ -169,3 +169,34 @@ def test_horizon_moves_every_band_together(default_model):
     assert SearchPlan.from_dict(higher.to_dict()) == higher
     with pytest.raises(ValueError, match="horizon"):
         SearchPlan(horizon=1.2)
+
+
+def test_plain_python_kernels_compute_the_same(default_model, test_frames, tmp_path):
+    """With NUMBA_DISABLE_JIT=1 the kernels run as plain Python (NumPy 2 integer rules): the
+    same margins, and the same features."""
+    import os
+    import subprocess
+    import sys
+
+    from vehicle_detection.features import extract_features
+
+    frame = np.ascontiguousarray(test_frames[0][380:580, 800:1120])
+    np.save(tmp_path / "frame.npy", frame)
+    plan = SearchPlan(scales=(SearchScale(1.0, 0, 96, x_stop=256),), reference_height=200, overhang=0.0)
+    script = (
+        "import sys, numpy as np, vehicle_detection as vd\n"
+        "from vehicle_detection.search import SearchPlan, search\n"
+        f"plan = SearchPlan.from_dict({plan.to_dict()!r})\n"
+        "frame = np.load(sys.argv[1])\n"
+        "np.save(sys.argv[2], search(frame, vd.load_default_model(), plan, all_windows=True).score)\n"
+        "np.save(sys.argv[3], vd.extract_features(frame[None, :64, :64], vd.load_default_model().config))\n"
+    )
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1"}
+    out = [tmp_path / "scores.npy", tmp_path / "features.npy"]
+    proc = subprocess.run([sys.executable, "-c", script, str(tmp_path / "frame.npy"), *map(str, out)], env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    jit = search(frame, default_model, plan, all_windows=True).score
+    assert len(jit) > 10
+    np.testing.assert_allclose(np.load(out[0]), jit, atol=1e-5)
+    np.testing.assert_allclose(np.load(out[1]), extract_features(frame[None, :64, :64], default_model.config), atol=1e-5)

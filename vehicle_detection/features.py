@@ -256,7 +256,7 @@ def _bin_spatial_batch(images, size, out):
         for by in range(size):
             for bx in range(size):
                 for ch in range(c):
-                    s = 0
+                    s = np.int64(0)  # a Python 0 plus uint8 stays uint8 without the JIT (NumPy 2)
                     for y in range(by * fy, (by + 1) * fy):
                         for x in range(bx * fx, (bx + 1) * fx):
                             s += images[i, y, x, ch]

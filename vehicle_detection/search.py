@@ -403,7 +403,7 @@ def _colour_sums(conv, f, ppc, hist_lut, bin_sums, cell_scores):
     for by in range(nby):
         for bx in range(nbx):
             for ch in range(3):
-                s = 0
+                s = np.int64(0)  # a Python 0 plus uint8 stays uint8 without the JIT (NumPy 2)
                 for y in range(by * f, (by + 1) * f):
                     for x in range(bx * f, (bx + 1) * f):
                         s += conv[y, x, ch]
