@@ -56,6 +56,7 @@ EXPECTED = {
         "video_tracks_timeline.png",
         "evaluation_labelled_frames.png",
     ],
+    "06_localisation.ipynb": ["localisation_before_after.png"],
 }
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Largest committed notebook (figures are the compact PNGs of plots.save_figure).

@@ -56,6 +56,8 @@ _API = {
     "draw_boxes": "drawing",
     "draw_detections": "drawing",
     # evaluation
+    "Annotations": "evaluate",
+    "FrameLabels": "evaluate",
     "load_annotations": "evaluate",
     "evaluate_detections": "evaluate",
     "evaluation_report": "evaluate",
@@ -87,7 +89,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .detections import Detections
     from .detector import Detector
     from .drawing import draw_boxes, draw_detections
-    from .evaluate import average_precision, evaluate_detections, evaluation_report, load_annotations, match_frame
+    from .evaluate import Annotations, FrameLabels, average_precision, evaluate_detections, evaluation_report, load_annotations, match_frame
     from .features import FeatureConfig, extract_features
     from .geometry import box_iou, match_boxes
     from .images import list_images, read_image, write_image

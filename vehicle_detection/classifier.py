@@ -287,7 +287,7 @@ class VehicleClassifier:
         except (TypeError, ValueError) as exc:
             raise ModelError(f"{path}: feature config does not match this code: {exc}") from None
         try:
-            detector_config = _V1_DETECTOR_CONFIG() if version == 1 else DetectorConfig.from_dict(meta.get("detector_config"))
+            detector_config = DetectorConfig.library_0_1() if version == 1 else DetectorConfig.from_dict(meta.get("detector_config"))
         except (TypeError, ValueError) as exc:
             raise ModelError(f"{path}: detector config does not match this code: {exc}") from None
         n = config.n_features
@@ -317,30 +317,6 @@ class VehicleClassifier:
             library_version=lib,
             detector_config=detector_config,
         )
-
-
-def _V1_DETECTOR_CONFIG() -> DetectorConfig:
-    """The settings library 0.1 ran every model with (its model files saved none)."""
-    from .search import SearchScale
-    from .tracker import TrackerConfig
-
-    plan = SearchPlan(
-        scales=(
-            SearchScale(1.0, 400, 496, step=2),
-            SearchScale(1.5, 400, 544, step=1),
-            SearchScale(2.0, 400, 592, step=1),
-            SearchScale(3.0, 400, 688, step=1),
-        ),
-        threshold=0.3,
-        reference_height=720,
-        overhang=0.0,
-        horizon=None,
-    )
-    tracker = TrackerConfig(
-        decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
-        aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
-    )
-    return DetectorConfig(plan=plan, tracker=tracker, image_threshold=2.0)
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:

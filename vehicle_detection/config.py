@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from .search import SearchPlan
+from .search import SearchPlan, SearchScale
 from .tracker import TrackerConfig
 
 __all__ = ["DetectorConfig"]
@@ -47,6 +47,31 @@ class DetectorConfig:
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
             raise ValueError(f"DetectorConfig.image_threshold must be a finite number >= 0; got {t!r}")
         object.__setattr__(self, "image_threshold", float(t))
+
+    @classmethod
+    def library_0_1(cls) -> DetectorConfig:
+        """The settings library 0.1 ran every model with (its model files saved none).
+
+        Model files of format 1 load with these; comparing with them shows what later settings
+        changed (the writeup does).
+        """
+        plan = SearchPlan(
+            scales=(
+                SearchScale(1.0, 400, 496, step=2),
+                SearchScale(1.5, 400, 544, step=1),
+                SearchScale(2.0, 400, 592, step=1),
+                SearchScale(3.0, 400, 688, step=1),
+            ),
+            threshold=0.3,
+            reference_height=720,
+            overhang=0.0,
+            horizon=None,
+        )
+        tracker = TrackerConfig(
+            decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
+            aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
+        )
+        return cls(plan=plan, tracker=tracker, image_threshold=2.0)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""

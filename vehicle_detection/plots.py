@@ -732,6 +732,38 @@ def detection_stages_figure(
     return fig
 
 
+def before_after_figure(items: Sequence[tuple], *, before: str = "before", after: str = "after"):
+    """One row per case: the same crop with the labelled cars and the boxes of two detectors.
+
+    Parameters
+    ----------
+    items : sequence of (title, frame, cars, boxes_before, boxes_after, crop)
+        ``cars``, ``boxes_before``, ``boxes_after``: ``(n, 4)`` boxes in frame pixels; ``crop``:
+        ``(x1, y1, x2, y2)``, the part of the frame shown.
+    before, after : str
+        Names of the two detectors (column titles).
+
+    Labels are dashed blue; each column draws its detector's boxes in green with their IoU
+    with the best-overlapping label.
+    """
+    from .geometry import box_iou
+
+    x1, y1, x2, y2 = items[0][5]
+    fig, axes = _grid(len(items), 2, 4.4, 4.4 * (y2 - y1) / (x2 - x1) + 0.3)
+    for r, (title, frame, cars, b0, b1, crop) in enumerate(items):
+        cx1, cy1, cx2, cy2 = crop
+        for c, (name, boxes) in enumerate(((before, b0), (after, b1))):
+            ax = axes[r, c]
+            _frame_ax(ax, frame, title=f"{title}: {name}")
+            _boxes(ax, cars, color="#2f7bff", lw=1.6, ls="--")
+            boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
+            ious = box_iou(boxes, cars).max(axis=1, initial=0.0) if len(boxes) else np.zeros(0)
+            _boxes(ax, boxes, lw=2.0, labels=[f"IoU {v:.2f}" for v in ious])
+            ax.set_xlim(cx1, cx2)
+            ax.set_ylim(cy2, cy1)
+    return fig
+
+
 def boxes_grid_figure(items: Sequence[tuple[str, np.ndarray, np.ndarray]], *, ncols: int = 3, title: str = "", rows: tuple[int, int] | None = None):
     """Frames with boxes drawn, ``ncols`` per row: ``items`` of (title, frame, boxes)."""
     nrows = -(-len(items) // ncols)
