@@ -20,7 +20,7 @@ import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import InputError, OutputError, VehicleDetectionError
+from .errors import InputError, OutputError, UsageError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
@@ -90,8 +90,8 @@ def _feature_config(args):
             spatial_size=args.spatial_size,
             hist_bins=args.hist_bins,
         )
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    except ValueError as exc:  # an option value that cannot work: a bad command line
+        raise UsageError(str(exc)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -237,7 +237,7 @@ def _csv_ints(text: str, what: str) -> list[int]:
     try:
         return [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise InputError(f"--{what}: expected comma-separated integers, got {text!r}") from None
+        raise UsageError(f"--{what}: expected comma-separated integers, got {text!r}") from None
 
 
 def _cmd_sweep(args) -> int:
@@ -251,7 +251,7 @@ def _cmd_sweep(args) -> int:
         if any(len(p) != 2 for p in pairs):
             raise ValueError
     except ValueError:
-        raise InputError(f"--color-features: expected pairs like 16x16,0x0, got {args.color_features!r}") from None
+        raise UsageError(f"--color-features: expected pairs like 16x16,0x0, got {args.color_features!r}") from None
     try:
         configs = sweep_configs(
             color_spaces=tuple(c.strip() for c in args.color_spaces.split(",") if c.strip()),
@@ -263,8 +263,8 @@ def _cmd_sweep(args) -> int:
             signed=tuple(bool(v) for v in _csv_ints(args.signed, "signed")),
             hog_sqrt=tuple(bool(v) for v in _csv_ints(args.hog_sqrt, "hog-sqrt")),
         )
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    except ValueError as exc:  # an option value that cannot work: a bad command line
+        raise UsageError(str(exc)) from None
     ds = load_dataset(args.data_dir)
     if args.subsample and args.subsample < len(ds):
         _, keep = split_indices(ds.labels, test_size=args.subsample / len(ds), random_state=0)
