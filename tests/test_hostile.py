@@ -177,3 +177,55 @@ def test_cli_boundary_feature_options_are_accepted(tmp_path, capsys):
     assert code == 3 and err == [f"{ERROR}{tmp_path / 'nowhere'}: data folder not found; run `vehicle-detection download` or pass --data-dir (or set $VEHICLE_DETECTION_DATA)"]
 
 
+# ----------------------------------------------------------------------------------------------
+# i. Too small a data set: a clear message before any work
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("per_class", "groups", "counts", "need"),
+    [(3, 3, "vehicles 3 images in 3 groups, non-vehicles 3 images in 3 groups", "at least 5 images and at least 3 groups (the grouped split leaves 2 of the 6 groups"),
+     (10, 1, "vehicles 10 images in 1 groups, non-vehicles 10 images in 1 groups", "at least 5 images and at least 2 groups (the grouped split leaves 1 of the 2 groups")],
+    ids=["few_images", "few_groups"],
+)  # fmt: skip
+@pytest.mark.parametrize("command", ["train", "sweep"])
+def test_too_small_a_dataset_is_a_clear_input_error(tmp_path, capsys, command, per_class, groups, counts, need):
+    data = make_data(tmp_path / "data", per_class, groups=groups, zipped=True)
+    before = snapshot(tmp_path)
+    extra = ["--model", tmp_path / "m.npz"] if command == "train" else ["--jobs", "1"]
+    code, out, err = run_main(capsys, command, "--data-dir", data, *extra)
+    assert code == 3
+    assert len(err) == 1, err
+    assert err[0].startswith(f"{ERROR}{data}: too few training images for the random and grouped train/test splits ({counts}); each class needs {need}")
+    assert out == []  # nothing computed, nothing reported
+    assert snapshot(tmp_path) == before
+
+
+def test_sweep_subsample_too_small_is_a_usage_error(tmp_path, capsys):
+    code, _, err = run_main(capsys, "sweep", "--subsample", "3", "--data-dir", tmp_path)
+    assert code == 2
+    assert err == [f"{ERROR}--subsample 3: too few images; at least 10 (5 per class) are needed"]
+
+
+def test_split_size_rule_is_sufficient():
+    """Data sets the check accepts never make scikit-learn raise, whatever the seed."""
+    from vehicle_detection.classifier import train
+    from vehicle_detection.data import Dataset, check_split_sizes
+
+    cfg = FeatureConfig(spatial_size=0, hist_bins=0, hog_channels=(0,), orientations=4)
+    # Imbalanced groups: 4 vehicle groups among 12; the grouped split leaves 3 out of training.
+    labels = np.array([1] * 8 + [0] * 8, np.int8)
+    groups = np.array([0, 0, 1, 1, 2, 2, 3, 3, 4, 5, 6, 7, 8, 9, 10, 11])
+    check_split_sizes(labels, groups)
+    with pytest.raises(InputError, match=r"vehicles 8 images in 3 groups.*at least 4 groups"):
+        check_split_sizes(labels, np.where(groups == 3, 2, groups))
+    with pytest.raises(InputError, match=r"non-vehicles 4 images"):
+        check_split_sizes(labels[:12], groups[:12])
+    images = np.stack([picture(64, 64, i) for i in range(len(labels))])
+    n = len(labels)
+    ds = Dataset(images, labels, np.array(["s"] * n), np.array([f"{i}.png" for i in range(n)]), groups, np.array([str(i) for i in range(n)]))
+    for seed in range(15):
+        model = train(ds, cfg, random_state=seed, n_jobs=1)
+        assert model.metrics["grouped_split"]["n_train"] > 0
+
+

@@ -196,19 +196,20 @@ def _train_report(model) -> dict:
 
 def _cmd_train(args) -> int:
     from .classifier import DEFAULT_C, train
-    from .data import load_dataset
+    from .data import check_split_sizes, default_data_dir, load_dataset
 
     config = _feature_config(args)
+    root = default_data_dir(args.data_dir)
     if args.model is not None:
         from ._files import check_output_path
-        from .data import CLASSES, default_data_dir
+        from .data import CLASSES
 
         # The archives are inputs: --model must never replace one, even with --overwrite.
-        root = default_data_dir(args.data_dir)
         check_output_path(args.model, overwrite=args.overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
     t = time.perf_counter()
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates)
     load_s = time.perf_counter() - t
+    check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed)
     model.metrics["load_seconds"] = round(load_s, 3)
     model.metrics["drop_duplicates"] = bool(args.drop_duplicates)
@@ -244,7 +245,7 @@ def _cmd_sweep(args) -> int:
     import numpy as np
 
     from .classifier import DEFAULT_C, split_indices, sweep, sweep_configs
-    from .data import load_dataset
+    from .data import CLASSES, MIN_IMAGES_PER_CLASS, check_split_sizes, default_data_dir, load_dataset
 
     try:
         pairs = [tuple(int(v) for v in p.lower().split("x")) for p in args.color_features.split(",") if p.strip()]
@@ -265,10 +266,16 @@ def _cmd_sweep(args) -> int:
         )
     except ValueError as exc:  # an option value that cannot work: a bad command line
         raise UsageError(str(exc)) from None
+    least = MIN_IMAGES_PER_CLASS * len(CLASSES)
+    if args.subsample is not None and args.subsample < least:
+        raise UsageError(f"--subsample {args.subsample}: too few images; at least {least} ({MIN_IMAGES_PER_CLASS} per class) are needed")
+    root = default_data_dir(args.data_dir)
     ds = load_dataset(args.data_dir)
-    if args.subsample and args.subsample < len(ds):
+    check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any work, not by scikit-learn
+    if args.subsample and args.subsample < len(ds) - 2 * len(CLASSES):  # else: all of it
         _, keep = split_indices(ds.labels, test_size=args.subsample / len(ds), random_state=0)
         ds = ds.subset(np.sort(keep))
+        check_split_sizes(ds.labels, ds.groups, name=f"{root} (--subsample {args.subsample})")
     print(f"sweeping {len(configs)} configurations on {len(ds)} images with {args.jobs} workers", file=sys.stderr)
     rows = sweep(ds, configs, C=DEFAULT_C, n_jobs=args.jobs)
     if args.json:
