@@ -128,6 +128,68 @@ def make_data(root: Path, per_class: int, *, groups: int = 1, zipped: bool = Fal
 
 
 # ----------------------------------------------------------------------------------------------
+# b. Absurd aspect ratios are refused before decoding
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("w", "h", "problem", "suffix"),
+    [(20000, 50, "too wide (more than 8:1)", ".png"), (100000, 1, "too wide (more than 8:1)", ".png"),
+     (401, 50, "too wide (more than 8:1)", ".png"), (50, 201, "too tall (more than 1:4)", ".png"),
+     (1, 5000, "too tall (more than 1:4)", ".png"), (20000, 50, "too wide (more than 8:1)", ".jpg"),
+     (50, 201, "too tall (more than 1:4)", ".jpg"), (50, 201, "too tall (more than 1:4)", ".webp")],
+)  # fmt: skip
+def test_extreme_aspect_ratio_refused_before_decoding(tmp_path, monkeypatch, w, h, problem, suffix):
+    path = tmp_path / f"strip{suffix}"
+    Image.new("L", (w, h), 128).save(path)  # a few KB on disk
+    assert path.stat().st_size < 20_000
+    # The shape is checked before the pixels are decoded, except for a PNG between 4:1 and 8:1
+    # tall, whose EXIF orientation (possibly stored after the pixels) decides if it is refused.
+    if not (suffix == ".png" and 4 * w < h <= 8 * w):
+
+        def no_decoding(self):
+            raise AssertionError("pixels decoded before the shape was checked")
+
+        monkeypatch.setattr(Image.Image, "load", no_decoding)
+        monkeypatch.setattr(ImageFile.ImageFile, "load", no_decoding)
+    with pytest.raises(InputError) as info:
+        read_image(path)
+    assert str(info.value) == f"{path}: image of {w}x{h} pixels is {problem}; crop it first"
+
+
+@pytest.mark.parametrize(("w", "h"), [(400, 50), (50, 200), (8, 1), (1, 4), (1280, 720), (720, 1280)])
+def test_aspect_ratio_limits_are_inclusive(tmp_path, w, h):
+    from vehicle_detection.images import check_frame_shape
+
+    path = tmp_path / "ok.png"
+    Image.new("RGB", (w, h), (10, 20, 30)).save(path)
+    assert read_image(path).shape == (h, w, 3)
+    check_frame_shape(h, w, "frame")
+
+
+def test_check_frame_shape_bounds_the_scaled_size():
+    from vehicle_detection.images import check_frame_shape
+
+    check_frame_shape(720, 5760, "v.mp4")  # 8:1 at 720 px: the largest working frame
+    with pytest.raises(InputError, match=r"^v\.mp4: image of 5761x720 pixels is too wide"):
+        check_frame_shape(720, 5761, "v.mp4")
+    # A taller search height makes the same shape larger once scaled: bounded too.
+    with pytest.raises(InputError, match=r"^v\.mp4: image of 5760x720 pixels would be 11520x1440 once scaled"):
+        check_frame_shape(720, 5760, "v.mp4", reference_height=1440)
+    with pytest.raises(InputError, match=r"^v\.mp4: empty image of 0x720 pixels"):
+        check_frame_shape(720, 0, "v.mp4")
+
+
+def test_cli_refuses_a_wide_image_with_exit_3_and_no_output(tmp_path, capsys):
+    path = tmp_path / "strip.png"
+    Image.new("RGB", (20000, 50)).save(path)
+    code, out, err = run_main(capsys, "detect", path)
+    assert code == 3
+    assert err == [f"{ERROR}{path}: image of 20000x50 pixels is too wide (more than 8:1); crop it first"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["strip.png"]
+
+
+# ----------------------------------------------------------------------------------------------
 # h. Feature configurations the sliding-window search cannot use are refused when built
 # ----------------------------------------------------------------------------------------------
 
@@ -229,3 +291,57 @@ def test_split_size_rule_is_sufficient():
         assert model.metrics["grouped_split"]["n_train"] > 0
 
 
+# ----------------------------------------------------------------------------------------------
+# n. EXIF orientation is applied
+# ----------------------------------------------------------------------------------------------
+
+# What each EXIF orientation value does to the stored pixels to show them upright.
+UPRIGHT = {
+    1: lambda a: a,
+    2: lambda a: a[:, ::-1],
+    3: lambda a: a[::-1, ::-1],
+    4: lambda a: a[::-1],
+    5: lambda a: a.swapaxes(0, 1),
+    6: lambda a: np.rot90(a, -1),  # stored rotated 90 degrees counter-clockwise: turn clockwise
+    7: lambda a: np.rot90(a, 2).swapaxes(0, 1),
+    8: lambda a: np.rot90(a, 1),
+}
+
+
+def _with_orientation(arr: np.ndarray, orientation: int, fmt: str) -> bytes:
+    img = Image.fromarray(arr)
+    exif = img.getexif()
+    exif[0x0112] = orientation
+    buf = io.BytesIO()
+    img.save(buf, format=fmt, exif=exif.tobytes(), **({"quality": 95} if fmt == "JPEG" else {}))
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_exif_orientation_applied(orientation):
+    stored = picture(6, 10, seed=orientation)
+    png = _with_orientation(stored, orientation, "PNG")
+    got = decode_image(png, "x.png")
+    np.testing.assert_array_equal(got, UPRIGHT[orientation](stored))
+    np.testing.assert_array_equal(got, np.asarray(ImageOps.exif_transpose(Image.open(io.BytesIO(png))).convert("RGB")))
+    jpeg = _with_orientation(picture(48, 80, seed=orientation), orientation, "JPEG")
+    want = np.asarray(ImageOps.exif_transpose(Image.open(io.BytesIO(jpeg))).convert("RGB"))
+    np.testing.assert_array_equal(decode_image(jpeg, "x.jpg"), want)
+
+
+def test_exif_rotated_jpeg_is_detected_upright(tmp_path, capsys):
+    stored = picture(72, 128)
+    path = tmp_path / "phone.jpg"
+    path.write_bytes(_with_orientation(stored, 6, "JPEG"))  # stored sideways: shown 72 wide, 128 high
+    assert read_image(path).shape == (128, 72, 3)
+    code, _, _ = run_main(capsys, "detect", path)
+    assert code == 0
+    assert read_image(tmp_path / "phone_detected.jpg").shape == (128, 72, 3)
+
+
+def test_exif_orientation_counts_for_the_shape_check(tmp_path):
+    path = tmp_path / "strip.jpg"
+    path.write_bytes(_with_orientation(np.zeros((60, 400, 3), np.uint8), 8, "JPEG"))  # 400x60 stored, 60x400 shown
+    with pytest.raises(InputError) as info:
+        read_image(path)
+    assert str(info.value) == f"{path}: image of 60x400 pixels is too tall (more than 1:4); crop it first"
