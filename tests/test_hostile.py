@@ -292,6 +292,29 @@ def test_split_size_rule_is_sufficient():
 
 
 # ----------------------------------------------------------------------------------------------
+# k. Image formats Pillow reads but cannot write: refused before any work
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("suffix", "why"), [(".xbm", "cannot write XBM images (cannot write mode RGB as XBM)"),
+                                             (".h5", "cannot write HDF5 images (HDF5 save handler not installed)"),
+                                             (".psd", "cannot write PSD images (Pillow can read this format but not write it)")])  # fmt: skip
+def test_unwritable_image_format_refused_before_detection(tmp_path, capsys, monkeypatch, suffix, why):
+    from vehicle_detection.detector import Detector
+
+    def no_work(self, image):
+        raise AssertionError("detection ran before the output format was checked")
+
+    monkeypatch.setattr(Detector, "detect_image", no_work)
+    img = save(tmp_path / "street.png", picture())
+    out = tmp_path / f"annotated{suffix}"
+    code, _, err = run_main(capsys, "detect", img, "--out", out)
+    assert code == 5
+    assert err == [f"{ERROR}{out}: {why}; use .png or .jpg"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["street.png"]
+
+
+# ----------------------------------------------------------------------------------------------
 # n. EXIF orientation is applied
 # ----------------------------------------------------------------------------------------------
 

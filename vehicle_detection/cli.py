@@ -314,7 +314,7 @@ def _default_outputs(inp: Path, kind: str):
 def _cmd_detect(args) -> int:
     from ._files import check_output_path
     from .boxes import BoxTable, write_boxes_csv
-    from .images import IMAGE_EXTENSIONS, list_images, read_image, write_image
+    from .images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
     from .video import annotate_frame, process_video
 
     inp = Path(args.input)
@@ -336,15 +336,15 @@ def _cmd_detect(args) -> int:
     if out.resolve() == boxes.resolve():
         raise OutputError(f"{out}: the annotated output and the boxes CSV cannot be the same file")
     if kind == "image":
-        from PIL import Image
-
-        if out.suffix.lower() not in Image.registered_extensions():
-            raise OutputError(f"{out}: unknown image extension {out.suffix!r} for the annotated image")
+        check_image_output(out)  # a format Pillow can write, before any work
     if kind == "folder" and out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder; the annotated images of a folder go into a folder")
     for o in (out, boxes):
         if kind != "folder" or o is boxes:
             check_output_path(o, overwrite=args.overwrite, inputs=[inp, *model_inputs])
+    if kind == "folder":
+        for f in list_images(inp):
+            check_image_output(out / f.name)  # e.g. .webp without a WebP encoder, before any work
     detector = _load_detector(args.model)
     t = time.perf_counter()
     if kind == "video":

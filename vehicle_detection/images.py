@@ -33,6 +33,7 @@ order, decodes only 16-bit colour files, and its output is reordered to RGB at o
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 from pathlib import Path
@@ -41,7 +42,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from ._files import atomic_output
-from .errors import InputError
+from .errors import InputError, OutputError
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -50,6 +51,7 @@ __all__ = [
     "SEARCH_HEIGHT",
     "MAX_SCALED_PIXELS",
     "check_frame_shape",
+    "check_image_output",
     "read_image",
     "decode_image",
     "as_rgb_uint8",
@@ -323,6 +325,40 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     return arr
 
 
+@functools.lru_cache(maxsize=None)
+def _writable_rgb_format(fmt: str) -> str | None:
+    """None if Pillow can write an RGB image as ``fmt``, else why not."""
+    try:
+        Image.new("RGB", (8, 8)).save(io.BytesIO(), format=fmt)
+    except KeyError:
+        return "Pillow can read this format but not write it"
+    except Exception as exc:  # "cannot write mode RGB as XBM", "HDF5 save handler not installed"
+        return str(exc) or type(exc).__name__
+    return None
+
+
+def check_image_output(path: str | os.PathLike) -> str:
+    """The Pillow format an RGB image written to ``path`` would have; refuse if there is none.
+
+    Checked from the extension (case-insensitive) with a trial write of a tiny RGB image to
+    memory, so that an extension Pillow reads but cannot write (``.xbm``, ``.h5``, ``.psd``) is
+    refused before any work.
+
+    Raises
+    ------
+    OutputError
+        Unknown extension, or a format Pillow cannot write in RGB.
+    """
+    path = Path(path)
+    fmt = Image.registered_extensions().get(path.suffix.lower())
+    if fmt is None:
+        raise OutputError(f"{path}: unknown image extension {path.suffix!r}; use .png or .jpg")
+    why = _writable_rgb_format(fmt)
+    if why is not None:
+        raise OutputError(f"{path}: cannot write {fmt} images ({why}); use .png or .jpg")
+    return fmt
+
+
 def write_image(path: str | os.PathLike, image, *, overwrite: bool = False, inputs=()) -> Path:
     """Write an RGB ``uint8`` image (format from the file extension), atomically.
 
@@ -340,12 +376,19 @@ def write_image(path: str | os.PathLike, image, *, overwrite: bool = False, inpu
     Returns
     -------
     Path
+
+    Raises
+    ------
+    InputError
+        If ``image`` is not an image array (see :func:`as_rgb_uint8`).
+    OutputError
+        If the extension is not a format Pillow can write (:func:`check_image_output`), the
+        output is refused (:func:`vehicle_detection._files.check_output_path`), or writing
+        fails (disk full, ...); the message names ``path``.
     """
     rgb = as_rgb_uint8(image, name=str(path))
     path = Path(path)
-    fmt = Image.registered_extensions().get(path.suffix.lower())
-    if fmt is None:
-        raise InputError(f"{path}: unknown image extension {path.suffix!r}")
+    fmt = check_image_output(path)
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         Image.fromarray(rgb).save(tmp, format=fmt)
     return path
