@@ -128,6 +128,46 @@ def make_data(root: Path, per_class: int, *, groups: int = 1, zipped: bool = Fal
 
 
 # ----------------------------------------------------------------------------------------------
+# a. Outputs that are not regular files are never replaced
+# ----------------------------------------------------------------------------------------------
+
+
+@posix_only
+@pytest.mark.parametrize("kind", ["fifo", "symlink_to_file", "dangling_symlink", "symlink_to_device"])
+@pytest.mark.parametrize("which", ["--out", "--boxes"])
+def test_overwrite_refuses_special_files(tmp_path, capsys, kind, which):
+    img = save(tmp_path / "street.png", picture())
+    target = tmp_path / "target.png"
+    special = tmp_path / ("special.png" if which == "--out" else "special.csv")
+    if kind == "fifo":
+        os.mkfifo(special)
+    elif kind == "symlink_to_file":
+        target.write_bytes(b"somebody else's file")
+        special.symlink_to(target)
+    elif kind == "dangling_symlink":
+        special.symlink_to(tmp_path / "nowhere" / "file.png")
+    else:
+        special.symlink_to("/dev/null")  # the link is what would be replaced; /dev/null is never opened
+    before = snapshot(tmp_path)
+    code, _, err = run_main(capsys, "detect", img, which, special, "--overwrite")
+    assert code == 5
+    what = {"fifo": "a FIFO (named pipe)"}.get(kind, "a symlink")
+    assert err == [f"{ERROR}{special}: output exists and is {what}, not a regular file; refusing to replace it"]
+    assert snapshot(tmp_path) == before  # the special file is intact, and nothing was written
+
+
+@posix_only
+def test_special_file_is_refused_also_when_it_appears_during_the_run(tmp_path):
+    dest = tmp_path / "out.csv"
+    with pytest.raises(OutputError, match="output exists and is a FIFO"):
+        with atomic_output(dest, overwrite=True) as tmp:
+            tmp.write_text("data\n")
+            os.mkfifo(dest)
+    assert snapshot(tmp_path) == {"out.csv": ("fifo",)}
+    assert check_output_path(tmp_path / "regular.csv", overwrite=True) == tmp_path / "regular.csv"
+
+
+# ----------------------------------------------------------------------------------------------
 # b. Absurd aspect ratios are refused before decoding
 # ----------------------------------------------------------------------------------------------
 
@@ -187,6 +227,42 @@ def test_cli_refuses_a_wide_image_with_exit_3_and_no_output(tmp_path, capsys):
     assert code == 3
     assert err == [f"{ERROR}{path}: image of 20000x50 pixels is too wide (more than 8:1); crop it first"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["strip.png"]
+
+
+# ----------------------------------------------------------------------------------------------
+# f. A full disk (or quota, read-only file system, permission) is exit 5 naming the file
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EIO], ids=errno.errorcode.get)
+def test_disk_full_writing_an_image(tmp_path, capsys, monkeypatch, code):
+    img = save(tmp_path / "street.png", picture())
+    real_save = Image.Image.save
+
+    def failing_save(self, fp, *args, **kwargs):
+        if isinstance(fp, (str, os.PathLike)):  # a file, not the up-front check in memory
+            raise OSError(code, os.strerror(code))
+        return real_save(self, fp, *args, **kwargs)
+
+    monkeypatch.setattr(Image.Image, "save", failing_save)
+    rc, _, err = run_main(capsys, "detect", img)
+    assert rc == 5
+    assert err == [f"{ERROR}{tmp_path / 'street_detected.png'}: cannot write output: {os.strerror(code)}"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["street.png"]
+
+
+def test_disk_full_writing_a_model(tmp_path, monkeypatch):
+    from vehicle_detection.classifier import VehicleClassifier
+
+    cfg = FeatureConfig(spatial_size=0, hist_bins=0, hog_channels=(0,), orientations=4, pixels_per_cell=16, cells_per_block=2)
+    rng = np.random.default_rng(0)
+    model = VehicleClassifier.fit(rng.normal(size=(20, cfg.n_features)), np.repeat([0, 1], 10), cfg)
+    monkeypatch.setattr(np, "savez", enospc)
+    dest = tmp_path / "model.npz"
+    with pytest.raises(OutputError) as info:
+        model.save(dest)
+    assert str(info.value) == f"{dest}: cannot write output: No space left on device"
+    assert list(tmp_path.iterdir()) == []
 
 
 # ----------------------------------------------------------------------------------------------

@@ -3,18 +3,24 @@
 Every writer in the package goes through :func:`atomic_output`: the data are written to a hidden
 ``.NAME.XXXX.partial`` file beside the destination and renamed over it only once complete, so an
 interrupted run (Ctrl-C, a crash, a kill) leaves at most a ``.partial`` file, never a truncated
-file under the final name.
+file under the final name, and an existing output being replaced stays as it was until the new
+one is complete.
+
+Only regular files are ever replaced: an existing output that is a symlink (even to a regular
+file), a FIFO, a device (``/dev/null``) or a socket is refused, with or without ``overwrite``,
+because renaming over it would replace the special file itself.
 """
 
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, VehicleDetectionError
 
 __all__ = ["atomic_output", "check_output_path", "read_text", "PARTIAL_SUFFIX"]
 
@@ -34,17 +40,49 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _special_kind(dest: Path) -> str | None:
+    """What ``dest`` is when it exists and is not a regular file (a symlink counts); else None."""
+    try:
+        mode = os.lstat(dest).st_mode
+    except OSError:  # missing (or unreadable: the write itself will say so)
+        return None
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISLNK(mode):
+        return "a symlink"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    return "not a regular file"
+
+
+def _refuse_special(dest: Path) -> None:
+    kind = _special_kind(dest)
+    if kind is not None:
+        raise OutputError(f"{dest}: output exists and is {kind}, not a regular file; refusing to replace it")
+
+
+def _write_error(dest: Path, exc: OSError) -> OutputError:
+    return OutputError(f"{dest}: cannot write output: {exc.strerror or exc}")
+
+
 def check_output_path(
     dest: str | os.PathLike, *, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = ()
 ) -> Path:
-    """Refuse an output path that is an input, a folder, or an existing file.
+    """Refuse an output path that is an input, a folder, a special file, or an existing file.
 
     Parameters
     ----------
     dest : path-like
         Where the output will be written.
     overwrite : bool
-        Allow replacing an existing file at ``dest`` (never an input).
+        Allow replacing an existing regular file at ``dest`` (never an input, never a symlink,
+        FIFO, device or socket).
     inputs : iterable of path-like
         Files the run reads; ``dest`` may not resolve to any of them, whatever ``overwrite`` says.
 
@@ -56,8 +94,8 @@ def check_output_path(
     Raises
     ------
     OutputError
-        If ``dest`` is an input, a folder, below a file instead of a folder, or exists and
-        ``overwrite`` is false.
+        If ``dest`` is an input, a folder, below a file instead of a folder, exists and is not a
+        regular file (symlinks included, dangling or not), or exists and ``overwrite`` is false.
     """
     dest = Path(dest)
     for src in inputs:
@@ -66,6 +104,7 @@ def check_output_path(
             raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
     if dest.is_dir():
         raise OutputError(f"{dest}: output path is a folder; give a file name")
+    _refuse_special(dest)
     for folder in dest.parents:  # the nearest existing ancestor must be a folder
         if folder.exists() or folder.is_symlink():
             if not folder.is_dir():
@@ -100,6 +139,12 @@ def atomic_output(
     Path
         The temporary file to write (it exists, empty). Writers that infer the format from the
         file name (ffmpeg) must be told the format explicitly: the name ends in ``.partial``.
+
+    Raises
+    ------
+    OutputError
+        As :func:`check_output_path`; also when writing fails with an ``OSError`` (disk full,
+        quota, read-only file system, permission denied...): the message names ``dest``.
     """
     dest = check_output_path(dest, overwrite=overwrite, inputs=inputs)
     try:
@@ -110,12 +155,21 @@ def atomic_output(
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        yield tmp
-        # Re-check: another process may have created dest while we were writing.
+        try:
+            yield tmp
+        except VehicleDetectionError:
+            raise
+        except OSError as exc:  # ENOSPC, EDQUOT, EROFS, EACCES, EIO... while writing
+            raise _write_error(dest, exc) from exc
+        # Re-check: another process may have created dest (or a special file) while we were writing.
+        _refuse_special(dest)
         if dest.exists() and not overwrite:
             raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, dest)
+        try:
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
+            os.replace(tmp, dest)
+        except OSError as exc:
+            raise _write_error(dest, exc) from None
     except BaseException:
         with suppress(OSError):
             tmp.unlink()
