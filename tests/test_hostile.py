@@ -230,6 +230,183 @@ def test_cli_refuses_a_wide_image_with_exit_3_and_no_output(tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------------------------
+# c. A failed --overwrite run keeps the previous outputs
+# ----------------------------------------------------------------------------------------------
+
+
+def test_failed_overwrite_of_an_image_keeps_both_previous_outputs(tmp_path, capsys, monkeypatch):
+    import vehicle_detection.boxes as boxes_module
+
+    img = save(tmp_path / "street.png", picture())
+    assert run_main(capsys, "detect", img)[0] == 0
+    before = snapshot(tmp_path)
+    assert sorted(before) == ["street.png", "street_boxes.csv", "street_detected.png"]
+    # The CSV is written after the annotated image: make it fail.
+    monkeypatch.setattr(boxes_module.Path, "write_text", enospc)
+    code, _, err = run_main(capsys, "detect", img, "--overwrite")
+    assert code == 5
+    assert err == [f"{ERROR}{tmp_path / 'street_boxes.csv'}: cannot write output: No space left on device"]
+    assert snapshot(tmp_path) == before  # old image and old CSV intact, no .partial
+
+
+def test_failed_overwrite_of_a_folder_keeps_every_previous_output(tmp_path, capsys):
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for i in range(2):
+        save(shots / f"a{i}.png", picture(seed=i))
+    assert run_main(capsys, "detect", shots)[0] == 0
+    before = snapshot(tmp_path / "shots_detected")
+    assert sorted(before) == ["a0.png", "a1.png", "boxes.csv"]
+    (shots / "z_broken.png").write_bytes(b"not a picture")  # the last in sorted order
+    code, _, err = run_main(capsys, "detect", shots, "--overwrite")
+    assert code == 3
+    assert err == [f"{ERROR}{shots / 'z_broken.png'}: not an image (or a format Pillow cannot read)"]
+    assert snapshot(tmp_path / "shots_detected") == before
+
+
+def test_folder_outputs_appear_together_or_not_at_all(tmp_path, capsys):
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    save(shots / "a.png", picture())
+    (shots / "b.png").write_bytes(b"")
+    code, _, err = run_main(capsys, "detect", shots)
+    assert code == 3 and err == [f"{ERROR}{shots / 'b.png'}: empty file, not an image"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shots"]  # no output folder, no .partial
+
+
+@needs_media
+def test_failed_overwrite_of_a_video_keeps_both_previous_outputs(tmp_path, capsys, monkeypatch):
+    from vehicle_detection import video as video_module
+
+    clip = tmp_path / "clip.mp4"
+    subprocess.run([FFMPEG, "-nostdin", "-loglevel", "error", "-i", TEST_VIDEO, "-frames:v", "3", "-c", "copy", clip], check=True)
+    assert run_main(capsys, "detect", clip, "--no-progress")[0] == 0
+    before = snapshot(tmp_path)
+    assert sorted(before) == ["clip.mp4", "clip_boxes.csv", "clip_detected.mp4"]
+
+    def broken_finish(self):
+        raise OutputError(f"{self.path}: ffmpeg failed to encode the video (exit status 1): No space left on device")
+
+    monkeypatch.setattr(video_module.VideoWriter, "_finish", broken_finish)
+    code, _, err = run_main(capsys, "detect", clip, "--no-progress", "--overwrite")
+    assert code == 5
+    assert err == [f"{ERROR}{tmp_path / 'clip_detected.mp4'}: ffmpeg failed to encode the video (exit status 1): No space left on device"]
+    assert snapshot(tmp_path) == before
+
+
+def test_output_batch_commits_all_or_nothing(tmp_path):
+    from vehicle_detection._files import output_batch
+
+    old = tmp_path / "old.txt"
+    old.write_text("previous\n")
+    with pytest.raises(KeyboardInterrupt):
+        with output_batch():
+            with atomic_output(old, overwrite=True) as tmp:
+                tmp.write_text("new\n")
+            with atomic_output(tmp_path / "new" / "deeper" / "b.txt") as tmp:
+                tmp.write_text("b\n")
+            assert old.read_text() == "previous\n"  # finished, but not yet in place
+            raise KeyboardInterrupt
+    assert snapshot(tmp_path) == {"old.txt": ("file", hashlib.sha256(b"previous\n").hexdigest())}
+    with output_batch():
+        with atomic_output(old, overwrite=True) as tmp:
+            tmp.write_text("new\n")
+        with atomic_output(tmp_path / "b.txt") as tmp:
+            tmp.write_text("b\n")
+    assert old.read_text() == "new\n" and (tmp_path / "b.txt").read_text() == "b\n"
+    assert partials(tmp_path) == []
+
+
+# ----------------------------------------------------------------------------------------------
+# d. SIGTERM and SIGHUP stop a run like Ctrl-C
+# ----------------------------------------------------------------------------------------------
+
+
+def _stop_when(proc: subprocess.Popen, ready, sig: int) -> tuple[str, str]:
+    try:
+        deadline = time.monotonic() + 120
+        while not ready():
+            assert proc.poll() is None, f"the run ended before it could be stopped: {proc.communicate()}"
+            assert time.monotonic() < deadline, "the run never got going"
+            time.sleep(0.01)
+        proc.send_signal(sig)
+        return proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def long_clip(tmp_path_factory):
+    if not TEST_VIDEO.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    path = tmp_path_factory.mktemp("long") / "long.mp4"
+    subprocess.run([FFMPEG, "-nostdin", "-loglevel", "error", "-stream_loop", "5", "-i", TEST_VIDEO, "-c", "copy", path], check=True)
+    return path
+
+
+@posix_only
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_signal_midway_through_a_video_keeps_previous_outputs(tmp_path, long_clip, sig):
+    video = tmp_path / "drive.mp4"
+    shutil.copy(long_clip, video)
+    out, csv = tmp_path / "drive_detected.mp4", tmp_path / "drive_boxes.csv"
+    out.write_bytes(b"previous video")
+    csv.write_text("previous boxes\n")
+    before = snapshot(tmp_path)
+
+    def encoding():
+        return any(p.stat().st_size > 100_000 for p in tmp_path.glob(f".{out.name}.*{PARTIAL_SUFFIX}") if p.exists())
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(video), "--no-progress", "--overwrite"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )  # fmt: skip
+    _, err = _stop_when(proc, encoding, sig)
+    assert proc.returncode == 130
+    assert err.splitlines() == ["vehicle-detection: interrupted"]
+    assert snapshot(tmp_path) == before  # no .partial, previous outputs untouched
+
+
+@posix_only
+@needs_media
+def test_sigterm_midway_through_a_folder_keeps_previous_outputs(tmp_path):
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for i in range(40):
+        shutil.copy(TEST_IMAGES / f"test{i % 6 + 1}.jpg", shots / f"img{i:02d}.jpg")
+    done = tmp_path / "shots_detected"
+    done.mkdir()
+    (done / "img00.jpg").write_bytes(b"previous annotated image")
+    (done / "boxes.csv").write_text("previous boxes\n")
+    before = snapshot(tmp_path)
+    old_inodes = {p.name: p.stat().st_ino for p in done.iterdir()}
+
+    def started():  # a new file in the output folder, or an old one replaced
+        try:
+            now = {p.name: p.stat().st_ino for p in done.iterdir()}
+        except FileNotFoundError:
+            return False
+        return any(old_inodes.get(name) != inode for name, inode in now.items())
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(shots), "--overwrite"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )  # fmt: skip
+    _, err = _stop_when(proc, started, signal.SIGTERM)
+    assert proc.returncode == 130
+    assert err.splitlines() == ["vehicle-detection: interrupted"]
+    assert snapshot(tmp_path) == before  # no half set of images, no .partial, old outputs intact
+
+
+def test_signal_handlers_are_restored(capsys):
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    assert main(["detect", "/nonexistent/x.png"]) == 3
+    assert {s: signal.getsignal(s) for s in handlers} == handlers
+
+
+# ----------------------------------------------------------------------------------------------
 # f. A full disk (or quota, read-only file system, permission) is exit 5 naming the file
 # ----------------------------------------------------------------------------------------------
 
@@ -249,6 +426,17 @@ def test_disk_full_writing_an_image(tmp_path, capsys, monkeypatch, code):
     assert rc == 5
     assert err == [f"{ERROR}{tmp_path / 'street_detected.png'}: cannot write output: {os.strerror(code)}"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["street.png"]
+
+
+def test_disk_full_writing_the_csv(tmp_path, capsys, monkeypatch):
+    import vehicle_detection.boxes as boxes_module
+
+    img = save(tmp_path / "street.png", picture())
+    monkeypatch.setattr(boxes_module.Path, "write_text", enospc)
+    rc, _, err = run_main(capsys, "detect", img, "--boxes", tmp_path / "sub" / "b.csv")
+    assert rc == 5
+    assert err == [f"{ERROR}{tmp_path / 'sub' / 'b.csv'}: cannot write output: No space left on device"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["street.png"]  # nor the folder made for it
 
 
 def test_disk_full_writing_a_model(tmp_path, monkeypatch):

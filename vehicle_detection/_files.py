@@ -6,6 +6,10 @@ interrupted run (Ctrl-C, a crash, a kill) leaves at most a ``.partial`` file, ne
 file under the final name, and an existing output being replaced stays as it was until the new
 one is complete.
 
+Several outputs of one run can be committed together with :func:`output_batch`: inside the block
+each completed output waits under its ``.partial`` name, and all are renamed into place at the
+end of the block, or all are deleted if the block fails, leaving every previous output intact.
+
 Only regular files are ever replaced: an existing output that is a symlink (even to a regular
 file), a FIFO, a device (``/dev/null``) or a socket is refused, with or without ``overwrite``,
 because renaming over it would replace the special file itself.
@@ -13,16 +17,26 @@ because renaming over it would replace the special file itself.
 
 from __future__ import annotations
 
+import contextvars
 import os
+import signal
 import stat
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from .errors import InputError, OutputError, VehicleDetectionError
 
-__all__ = ["atomic_output", "check_output_path", "read_text", "PARTIAL_SUFFIX"]
+__all__ = [
+    "atomic_output",
+    "check_output_path",
+    "output_batch",
+    "interrupt_on_signals",
+    "read_text",
+    "PARTIAL_SUFFIX",
+]
 
 PARTIAL_SUFFIX = ".partial"
 
@@ -115,6 +129,102 @@ def check_output_path(
     return dest
 
 
+# --- committing outputs ------------------------------------------------------------------------
+
+
+class _Renaming:
+    """Set while finished outputs are being renamed into place (see interrupt_on_signals)."""
+
+    active = 0
+    pending: int | None = None
+
+
+def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
+    """Rename each finished temporary file over its destination, checking every one first.
+
+    Raises OutputError (and deletes every temporary file not yet renamed) if a destination has
+    become unacceptable meanwhile or a rename fails.
+    """
+    done = 0
+    try:
+        for tmp, dest, overwrite in entries:  # all checks before the first rename
+            _refuse_special(dest)
+            if dest.exists() and not overwrite:
+                raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
+            try:
+                os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
+            except OSError as exc:
+                raise _write_error(dest, exc) from None
+        _Renaming.active += 1
+        try:
+            for tmp, dest, _ in entries:
+                try:
+                    os.replace(tmp, dest)
+                except OSError as exc:
+                    raise _write_error(dest, exc) from None
+                done += 1
+        finally:
+            _Renaming.active -= 1
+    except BaseException:
+        for tmp, _, _ in entries[done:]:
+            with suppress(OSError):
+                tmp.unlink()
+        raise
+    if _Renaming.pending is not None and not _Renaming.active:
+        _Renaming.pending = None
+        raise KeyboardInterrupt  # a signal arrived during the renames: act on it now
+
+
+class _Batch:
+    def __init__(self) -> None:
+        self.entries: list[tuple[Path, Path, bool]] = []
+        self.created: list[Path] = []  # folders made for the outputs, outermost first
+
+
+_BATCH: contextvars.ContextVar[_Batch | None] = contextvars.ContextVar("vehicle_detection_output_batch", default=None)
+
+
+@contextmanager
+def output_batch() -> Iterator[None]:
+    """Commit every :func:`atomic_output` completed inside the block together, at its end.
+
+    Inside the block a finished output stays under its hidden ``.partial`` name. When the block
+    succeeds, every destination is checked again and all are renamed into place (in the order
+    they were finished); when it raises (including ``KeyboardInterrupt``), every temporary file
+    is deleted, so the previous outputs, if any, are left exactly as they were, and folders
+    created for the outputs are removed again if empty. Nested batches join the outer one.
+    """
+    if _BATCH.get() is not None:
+        yield
+        return
+    batch = _Batch()
+    token = _BATCH.set(batch)
+    try:
+        yield
+    except BaseException:
+        _BATCH.reset(token)
+        for tmp, _, _ in batch.entries:
+            with suppress(OSError):
+                tmp.unlink()
+        for folder in reversed(batch.created):
+            with suppress(OSError):
+                folder.rmdir()  # only if empty
+        raise
+    _BATCH.reset(token)
+    _commit(batch.entries)
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """Create ``folder`` and missing ancestors; return those created, outermost first."""
+    missing = []
+    for f in (folder, *folder.parents):
+        if f.exists() or f.is_symlink():
+            break
+        missing.append(f)
+    folder.mkdir(parents=True, exist_ok=True)
+    return list(reversed(missing))
+
+
 @contextmanager
 def atomic_output(
     dest: str | os.PathLike,
@@ -125,7 +235,9 @@ def atomic_output(
     """Yield a temporary path beside ``dest``; rename it to ``dest`` when the block succeeds.
 
     Missing parent folders are created. On any exception (including ``KeyboardInterrupt``) the
-    temporary file is deleted and ``dest`` is left as it was.
+    temporary file is deleted and ``dest`` is left as it was: an existing file being replaced
+    is only replaced by the finished new one. Inside :func:`output_batch` the rename waits for
+    the end of the batch.
 
     Parameters
     ----------
@@ -147,8 +259,11 @@ def atomic_output(
         quota, read-only file system, permission denied...): the message names ``dest``.
     """
     dest = check_output_path(dest, overwrite=overwrite, inputs=inputs)
+    batch = _BATCH.get()
     try:
-        dest.parent.mkdir(parents=True, exist_ok=True)
+        created = _make_parents(dest.parent)
+        if batch is not None:
+            batch.created.extend(created)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent)
     except OSError as exc:
         raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
@@ -161,19 +276,57 @@ def atomic_output(
             raise
         except OSError as exc:  # ENOSPC, EDQUOT, EROFS, EACCES, EIO... while writing
             raise _write_error(dest, exc) from exc
-        # Re-check: another process may have created dest (or a special file) while we were writing.
-        _refuse_special(dest)
-        if dest.exists() and not overwrite:
-            raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
-        try:
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
-            os.replace(tmp, dest)
-        except OSError as exc:
-            raise _write_error(dest, exc) from None
+        if batch is not None:
+            batch.entries.append((tmp, dest, overwrite))
+        else:
+            _commit([(tmp, dest, overwrite)])
     except BaseException:
         with suppress(OSError):
             tmp.unlink()
         raise
+
+
+# --- signals -----------------------------------------------------------------------------------
+
+
+@contextmanager
+def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP")) -> Iterator[None]:
+    """Within the block, SIGINT, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` like Ctrl-C.
+
+    So ``timeout``, ``docker stop``, systemd and a closed terminal get the same clean-up as
+    Ctrl-C: temporary files deleted, previous outputs left intact. Only the first signal raises
+    (a second one during the clean-up is ignored), and a signal that arrives while finished
+    outputs are being renamed into place is acted on once the renames are done. Installed only
+    when called from the main thread; the previous handlers are restored on exit.
+    """
+    nums = [getattr(signal, name) for name in signals if hasattr(signal, name)]
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = False
+
+    def handler(signum, frame):
+        nonlocal fired
+        if fired:
+            return
+        if _Renaming.active:
+            _Renaming.pending = signum
+            return
+        fired = True
+        raise KeyboardInterrupt
+
+    previous = {}
+    try:
+        for num in nums:
+            previous[num] = signal.signal(num, handler)
+        yield
+    finally:
+        for num, old in previous.items():
+            signal.signal(num, old if old is not None else signal.SIG_DFL)
+        _Renaming.pending = None
+
+
+# --- reading -----------------------------------------------------------------------------------
 
 
 def read_text(path: str | os.PathLike, what: str, kind: str, *, encoding: str = "utf-8") -> str:

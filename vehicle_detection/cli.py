@@ -6,7 +6,7 @@ exit non-zero; ``--debug`` prints the traceback before that line (the exit code 
 
 Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command line;
 3 bad input file; 4 bad or mismatched model file; 5 output refused or not writable;
-6 download failed; 130 interrupted (Ctrl-C).
+6 download failed; 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
 """
 
 from __future__ import annotations
@@ -312,7 +312,7 @@ def _default_outputs(inp: Path, kind: str):
 
 
 def _cmd_detect(args) -> int:
-    from ._files import check_output_path
+    from ._files import check_output_path, output_batch
     from .boxes import BoxTable, write_boxes_csv
     from .images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
     from .video import annotate_frame, process_video
@@ -342,47 +342,41 @@ def _cmd_detect(args) -> int:
     for o in (out, boxes):
         if kind != "folder" or o is boxes:
             check_output_path(o, overwrite=args.overwrite, inputs=[inp, *model_inputs])
+    files = list_images(inp) if kind == "folder" else [inp]
+    outs = [out / f.name for f in files] if kind == "folder" else [out]
+    inputs = [*files, *model_inputs]
     if kind == "folder":
-        for f in list_images(inp):
-            check_image_output(out / f.name)  # e.g. .webp without a WebP encoder, before any work
+        for o in outs:
+            check_image_output(o)  # e.g. .webp without a WebP encoder
+            check_output_path(o, overwrite=args.overwrite, inputs=inputs)
+        check_output_path(boxes, overwrite=args.overwrite, inputs=inputs)
     detector = _load_detector(args.model)
     t = time.perf_counter()
-    if kind == "video":
-        table = process_video(
-            inp, out, detector=detector, boxes_csv=boxes, overwrite=args.overwrite, progress=not args.no_progress,
-            preset=args.preset, crf=args.crf,
-        )
-        n = len(set(table.frame.tolist()))
-        print(f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)")
-        return 0
-    files = [inp] if kind == "image" else list_images(inp)
-    outs = [out] if kind == "image" else [out / f.name for f in files]
-    inputs = [*files, *model_inputs]
-    for o in [*outs, boxes]:
-        check_output_path(o, overwrite=args.overwrite, inputs=inputs)
-    rows = []
-    new_folders = [d for d in (out, boxes.parent) if kind == "folder" and not d.exists()]
-    written = []
-    try:
-        for i, (f, o) in enumerate(zip(files, outs)):
-            image = read_image(f)
-            det = detector.detect_image(image)
-            written.append(write_image(o, annotate_frame(image, det.boxes), overwrite=args.overwrite, inputs=inputs))
-            rows.extend((i, b, -1, s) for b, s in zip(det.boxes, det.scores))
-            print(f"{f}: {len(det.boxes)} vehicles -> {o}")
-        write_boxes_csv(boxes, BoxTable.from_rows(rows) if rows else BoxTable.empty(), overwrite=args.overwrite, inputs=inputs)
-    except BaseException:
-        # A folder that fails part-way (a corrupt image, Ctrl-C) must not leave a half set of
-        # annotated images that looks like a result: remove what this run wrote.
-        for o in written:
-            o.unlink(missing_ok=True)
-        for d in new_folders:
-            try:
-                d.rmdir()  # only if empty
-            except OSError:
-                pass
-        raise
-    print(f"boxes: {boxes}")
+    # All outputs of the run are committed together at the end: a run that fails or is stopped
+    # part-way (a corrupt image, Ctrl-C, SIGTERM, a full disk) leaves no new file, no .partial
+    # file, no new folder, and every previous output (--overwrite) exactly as it was.
+    with output_batch():
+        if kind == "video":
+            table = process_video(
+                inp, out, detector=detector, overwrite=args.overwrite, progress=not args.no_progress,
+                preset=args.preset, crf=args.crf,
+            )
+            write_boxes_csv(boxes, table, overwrite=args.overwrite, inputs=inputs)
+            n = len(set(table.frame.tolist()))
+            report = [f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)"]
+        else:
+            rows = []
+            for i, (f, o) in enumerate(zip(files, outs)):
+                image = read_image(f)
+                det = detector.detect_image(image)
+                write_image(o, annotate_frame(image, det.boxes), overwrite=args.overwrite, inputs=inputs)
+                rows.extend((i, b, -1, s) for b, s in zip(det.boxes, det.scores))
+                print(f"{f}: {len(det.boxes)} vehicles -> {o}")  # progress; o appears at the end
+            table = BoxTable.from_rows(rows) if rows else BoxTable.empty()
+            write_boxes_csv(boxes, table, overwrite=args.overwrite, inputs=inputs)
+            report = [f"boxes: {boxes}"]
+    for line in report:
+        print(line)
     return 0
 
 
@@ -440,9 +434,18 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit code (see module docstring)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    return _run(args)
+
+
+def _run(args) -> int:
+    from ._files import interrupt_on_signals
+
     # With --debug the traceback comes first, then the same one-line message and exit code.
+    # SIGTERM (timeout, docker stop, systemd) and SIGHUP (a closed terminal) stop a run like
+    # Ctrl-C: KeyboardInterrupt, so the same clean-up runs and the exit status is 130.
     try:
-        return _COMMANDS[args.command](args)
+        with interrupt_on_signals():
+            return _COMMANDS[args.command](args)
     except KeyboardInterrupt:
         if args.debug:
             traceback.print_exc()
