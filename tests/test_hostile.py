@@ -454,6 +454,30 @@ def test_disk_full_writing_a_model(tmp_path, monkeypatch):
 
 
 # ----------------------------------------------------------------------------------------------
+# g. The model path may not be a training image
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("spelling", ["plain", "dotted", "symlinked_folder"])
+def test_train_refuses_a_model_path_inside_the_extracted_images(tmp_path, capsys, spelling):
+    data = make_data(tmp_path / "data", 12, groups=6)
+    image = data / "vehicles" / "set" / "image0.png"
+    if spelling == "plain":
+        model = image
+    elif spelling == "dotted":
+        model = data / "non-vehicles" / ".." / "vehicles" / "set" / "image0.png"
+    else:
+        (tmp_path / "alias").symlink_to(data / "vehicles")
+        model = tmp_path / "alias" / "set" / "new_model.npz"
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "train", "--data-dir", data, "--model", model, "--overwrite")
+    assert code == 5
+    assert err == [f"{ERROR}{model}: model path is inside the training images folder {data / 'vehicles'}; save the model elsewhere"]
+    assert out == []  # refused before any work
+    assert snapshot(tmp_path) == before
+
+
+# ----------------------------------------------------------------------------------------------
 # h. Feature configurations the sliding-window search cannot use are refused when built
 # ----------------------------------------------------------------------------------------------
 

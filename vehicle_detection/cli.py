@@ -201,11 +201,7 @@ def _cmd_train(args) -> int:
     config = _feature_config(args)
     root = default_data_dir(args.data_dir)
     if args.model is not None:
-        from ._files import check_output_path
-        from .data import CLASSES
-
-        # The archives are inputs: --model must never replace one, even with --overwrite.
-        check_output_path(args.model, overwrite=args.overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
+        _check_model_output(args.model, root, overwrite=args.overwrite)
     t = time.perf_counter()
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates)
     load_s = time.perf_counter() - t
@@ -232,6 +228,22 @@ def _cmd_train(args) -> int:
     if args.json:
         print(json.dumps(report))
     return 0
+
+
+def _check_model_output(model, root: Path, *, overwrite: bool) -> None:
+    """The training data are inputs: ``--model`` may not be an archive or lie in a class folder."""
+    from ._files import check_output_path
+    from .data import CLASSES
+
+    model = Path(model)
+    check_output_path(model, overwrite=overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
+    target = model.resolve()
+    for cls in CLASSES:
+        folder = (root / cls).resolve()
+        if target == folder or folder in target.parents:
+            raise OutputError(
+                f"{model}: model path is inside the training images folder {root / cls}; save the model elsewhere"
+            )
 
 
 def _csv_ints(text: str, what: str) -> list[int]:
