@@ -603,6 +603,34 @@ def test_unwritable_image_format_refused_before_detection(tmp_path, capsys, monk
 
 
 # ----------------------------------------------------------------------------------------------
+# l. A closed stdout pipe: the outputs are written, the exit is quiet
+# ----------------------------------------------------------------------------------------------
+
+
+@posix_only
+@pytest.mark.parametrize("buffering", ["unbuffered", "buffered"])
+def test_closed_stdout_keeps_the_outputs_and_exits_quietly(tmp_path, buffering):
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for i in range(2):
+        save(shots / f"a{i}.png", picture(seed=i))
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the first line is written (| head -0)
+    env = dict(os.environ, PYTHONUNBUFFERED="1") if buffering == "unbuffered" else {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "vehicle_detection.cli", "detect", str(shots)],
+            stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=300, cwd=REPO, env=env,
+        )  # fmt: skip
+    finally:
+        os.close(write_end)
+    assert (proc.returncode, proc.stderr) == (0, "")
+    done = tmp_path / "shots_detected"
+    assert sorted(p.name for p in done.iterdir()) == ["a0.png", "a1.png", "boxes.csv"]
+    assert read_image(done / "a0.png").shape == (72, 128, 3)
+
+
+# ----------------------------------------------------------------------------------------------
 # n. EXIF orientation is applied
 # ----------------------------------------------------------------------------------------------
 

@@ -7,6 +7,9 @@ exit non-zero; ``--debug`` prints the traceback before that line (the exit code 
 Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command line;
 3 bad input file; 4 bad or mismatched model file; 5 output refused or not writable;
 6 download failed; 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
+
+A closed standard output (``vehicle-detection ... | head -1``) does not stop a run: the rest of
+the report is discarded, the outputs are written, and the exit status is the run's own.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import os
 import sys
 import time
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
@@ -442,11 +446,70 @@ _COMMANDS = {
 }
 
 
+class _GuardedStdout:
+    """Standard output that turns quiet, instead of failing, once its reader has gone.
+
+    On the first ``BrokenPipeError`` (``... | head -1``) the file descriptor is pointed at
+    ``os.devnull``, so that the rest of the report, and the interpreter's final flush, are
+    discarded silently while the run finishes its real outputs.
+    """
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.broken = False
+
+    def _mute(self) -> None:
+        self.broken = True
+        try:
+            fd = self._stream.fileno()
+            devnull = os.open(os.devnull, os.O_WRONLY)
+        except (OSError, ValueError, AttributeError):
+            return
+        try:
+            os.dup2(devnull, fd)
+        finally:
+            os.close(devnull)
+
+    def write(self, text: str) -> int:
+        if not self.broken:
+            try:
+                return self._stream.write(text)
+            except BrokenPipeError:
+                self._mute()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.broken:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._mute()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextmanager
+def _guarded_stdout():
+    real = sys.stdout
+    if real is None:
+        yield
+        return
+    guard = sys.stdout = _GuardedStdout(real)
+    try:
+        yield
+    finally:
+        guard.flush()  # a pipe closed early shows up here when stdout is block-buffered
+        if sys.stdout is guard:
+            sys.stdout = real
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see module docstring)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    return _run(args)
+    with _guarded_stdout():
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        return _run(args)
 
 
 def _run(args) -> int:
