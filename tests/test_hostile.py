@@ -521,6 +521,33 @@ def test_cli_bad_feature_options_are_usage_errors(tmp_path, capsys, argv, fragme
     assert out == [] and list(tmp_path.iterdir()) == []
 
 
+def test_model_file_with_a_two_block_config_is_refused_not_a_crash(tmp_path, capsys):
+    """A model saved before the check (--cells-per-block 7) is a bad model file (exit 4), not an IndexError."""
+    import json
+
+    from vehicle_detection.classifier import _digest, default_model_path
+
+    with np.load(default_model_path(), allow_pickle=False) as npz:
+        meta = json.loads(npz["meta"].tobytes())
+    # A consistent, correctly signed model of the old, unchecked config (2 blocks per window).
+    config = {**meta["feature_config"], "cells_per_block": 7}
+    n = sum(v for v in (3 * config["spatial_size"] ** 2, 3 * config["hist_bins"],
+                        len(config["hog_channels"]) * 2 * 2 * 7 * 7 * config["orientations"]))  # fmt: skip
+    rng = np.random.default_rng(0)
+    arrays = {"scaler_mean": rng.normal(size=n), "scaler_scale": rng.uniform(0.5, 2, n), "coef": rng.normal(size=n) * 1e-3,
+              "intercept": np.array([0.0])}  # fmt: skip
+    meta["feature_config"] = config
+    meta["sha256"] = _digest(arrays, meta)
+    model = tmp_path / "two_blocks.npz"
+    np.savez(model, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    img = save(tmp_path / "street.png", picture())
+    before = snapshot(tmp_path)
+    code, _, err = run_main(capsys, "detect", img, "--model", model)
+    assert code == 4
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{model}: feature config does not match this code: invalid FeatureConfig: cells_per_block must be at most 6"), err
+    assert snapshot(tmp_path) == before
+
+
 def test_cli_boundary_feature_options_are_accepted(tmp_path, capsys):
     # Accepted: the run goes on to look for the data (exit 3), instead of refusing the options.
     code, _, err = run_main(capsys, "train", "--cells-per-block", "6", "--data-dir", tmp_path / "nowhere")
