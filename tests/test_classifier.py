@@ -70,9 +70,9 @@ def test_decision_images_equals_features_path(small_model, real_features):
 
 
 def test_fit_standardises_and_separates():
-    cfg = FeatureConfig(spatial_size=0, hist_bins=0, hog_channels=(0,), orientations=5, pixels_per_cell=32, cells_per_block=1)
+    cfg = FeatureConfig(spatial_size=0, hist_bins=0, hog_channels=(0,), orientations=5, pixels_per_cell=16, cells_per_block=1, window=48)
     nf = cfg.n_features
-    assert nf == 1 * (2 * 2) * (1 * 1) * 5  # channels * blocks * cells per block * orientations
+    assert nf == 1 * (3 * 3) * (1 * 1) * 5  # channels * blocks * cells per block * orientations
     rng = np.random.default_rng(0)
     n = 400
     y = np.repeat([0, 1], n // 2)

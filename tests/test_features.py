@@ -43,7 +43,7 @@ CONFIGS = [
     FeatureConfig(signed=False, hog_sqrt=False, orientations=9),
     FeatureConfig(color_space="HSV", hog_channels=(2,), orientations=11, pixels_per_cell=16, cells_per_block=2),
     FeatureConfig(color_space="LUV", hog_channels=(1, 2), orientations=12, pixels_per_cell=8, cells_per_block=3),
-    FeatureConfig(color_space="HLS", hog_channels=(0, 2), orientations=6, pixels_per_cell=16, cells_per_block=3),
+    FeatureConfig(color_space="HLS", hog_channels=(0, 2), orientations=6, pixels_per_cell=16, cells_per_block=1),
     FeatureConfig(color_space="YUV", hog_channels=(0,), orientations=7, pixels_per_cell=8, cells_per_block=2),
     FeatureConfig(color_space="RGB", hog_channels=(0, 1, 2), orientations=10, pixels_per_cell=8, cells_per_block=3),
     FeatureConfig(color_space="YCrCb", hog_channels=(0, 1), orientations=8, pixels_per_cell=16, cells_per_block=2),
@@ -219,7 +219,7 @@ def test_extract_features_matches_references_on_real_patches(real_patches, cfg):
 @st.composite
 def hog_cases(draw):
     ppc = draw(st.sampled_from([8, 16]))
-    cpb = draw(st.sampled_from([2, 3]))
+    cpb = draw(st.sampled_from([2, 3] if ppc == 8 else [1, 2]))  # at least 3 blocks per 64-pixel window
     cfg = FeatureConfig(
         color_space=draw(st.sampled_from(COLOR_SPACES)),
         hog_channels=draw(st.sampled_from([(0,), (1,), (2,), (0, 1), (0, 2), (1, 2), (0, 1, 2)])),
@@ -516,6 +516,10 @@ def test_extract_features_refuses_bad_patches(bad):
         {"cells_per_block": 8},  # == cells per window
         {"cells_per_block": 0},
         {"pixels_per_cell": 16, "cells_per_block": 4},
+        {"cells_per_block": 7},  # 2 blocks per window: the sliding-window search needs 3
+        {"pixels_per_cell": 16, "cells_per_block": 3},  # 2 blocks
+        {"pixels_per_cell": 4, "cells_per_block": 15},  # 2 blocks
+        {"pixels_per_cell": 32, "cells_per_block": 1},  # 2 cells per window
         {"spatial_size": 5},
         {"spatial_size": -1},
         {"hist_bins": 257},
@@ -535,7 +539,9 @@ def test_feature_config_edge_values_accepted():
     FeatureConfig(orientations=64)
     FeatureConfig(hist_bins=256, spatial_size=64)
     FeatureConfig(spatial_size=0, hist_bins=0)
-    FeatureConfig(pixels_per_cell=4, cells_per_block=15)
+    FeatureConfig(pixels_per_cell=4, cells_per_block=14)  # 3 blocks per window, the fewest the search handles
+    FeatureConfig(cells_per_block=6)
+    FeatureConfig(pixels_per_cell=16, cells_per_block=2)
     FeatureConfig(orientations=np.int64(9))
     assert FeatureConfig(hog_channels=[0, 2]).hog_channels == (0, 2)
 
@@ -683,7 +689,7 @@ def test_signed_bins_separate_opposite_gradients():
     up = np.zeros((16, 16, 3), np.uint8)
     up[:, 8:] = 200
     down = 200 - up
-    cfg = FeatureConfig(color_space="RGB", hog_channels=(0,), orientations=4, pixels_per_cell=8, cells_per_block=1, window=16,
+    cfg = FeatureConfig(color_space="RGB", hog_channels=(0,), orientations=4, pixels_per_cell=4, cells_per_block=1, window=16,
                         signed=True, hog_sqrt=False, spatial_size=0, hist_bins=0)
     a, b = hog_features(up[None], cfg)[0], hog_features(down[None], cfg)[0]
     assert not np.allclose(a, b)

@@ -348,7 +348,7 @@ def test_write_refuses_overwriting_an_input(tmp_path):
 def test_write_refuses_bad_arrays_and_extensions_leaving_nothing(tmp_path):
     with pytest.raises(InputError):
         write_image(tmp_path / "f.png", np.zeros((4, 4, 3), np.float32))
-    with pytest.raises(InputError):
+    with pytest.raises(OutputError):  # an output that cannot be written (exit 5 on the command line)
         write_image(tmp_path / "f.notanimage", np.zeros((4, 4, 3), np.uint8))
     assert list(tmp_path.iterdir()) == []
 

@@ -3,20 +3,40 @@
 Every writer in the package goes through :func:`atomic_output`: the data are written to a hidden
 ``.NAME.XXXX.partial`` file beside the destination and renamed over it only once complete, so an
 interrupted run (Ctrl-C, a crash, a kill) leaves at most a ``.partial`` file, never a truncated
-file under the final name.
+file under the final name, and an existing output being replaced stays as it was until the new
+one is complete.
+
+Several outputs of one run can be committed together with :func:`output_batch`: inside the block
+each completed output waits under its ``.partial`` name, and all are renamed into place at the
+end of the block, or all are deleted if the block fails, leaving every previous output intact.
+
+Only regular files are ever replaced: an existing output that is a symlink (even to a regular
+file), a FIFO, a device (``/dev/null``) or a socket is refused, with or without ``overwrite``,
+because renaming over it would replace the special file itself.
 """
 
 from __future__ import annotations
 
+import contextvars
 import os
+import signal
+import stat
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, VehicleDetectionError
 
-__all__ = ["atomic_output", "check_output_path", "read_text", "PARTIAL_SUFFIX"]
+__all__ = [
+    "atomic_output",
+    "check_output_path",
+    "output_batch",
+    "interrupt_on_signals",
+    "read_text",
+    "PARTIAL_SUFFIX",
+]
 
 PARTIAL_SUFFIX = ".partial"
 
@@ -34,17 +54,49 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _special_kind(dest: Path) -> str | None:
+    """What ``dest`` is when it exists and is not a regular file (a symlink counts); else None."""
+    try:
+        mode = os.lstat(dest).st_mode
+    except OSError:  # missing (or unreadable: the write itself will say so)
+        return None
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISLNK(mode):
+        return "a symlink"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    return "not a regular file"
+
+
+def _refuse_special(dest: Path) -> None:
+    kind = _special_kind(dest)
+    if kind is not None:
+        raise OutputError(f"{dest}: output exists and is {kind}, not a regular file; refusing to replace it")
+
+
+def _write_error(dest: Path, exc: OSError) -> OutputError:
+    return OutputError(f"{dest}: cannot write output: {exc.strerror or exc}")
+
+
 def check_output_path(
     dest: str | os.PathLike, *, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = ()
 ) -> Path:
-    """Refuse an output path that is an input, a folder, or an existing file.
+    """Refuse an output path that is an input, a folder, a special file, or an existing file.
 
     Parameters
     ----------
     dest : path-like
         Where the output will be written.
     overwrite : bool
-        Allow replacing an existing file at ``dest`` (never an input).
+        Allow replacing an existing regular file at ``dest`` (never an input, never a symlink,
+        FIFO, device or socket).
     inputs : iterable of path-like
         Files the run reads; ``dest`` may not resolve to any of them, whatever ``overwrite`` says.
 
@@ -56,8 +108,8 @@ def check_output_path(
     Raises
     ------
     OutputError
-        If ``dest`` is an input, a folder, below a file instead of a folder, or exists and
-        ``overwrite`` is false.
+        If ``dest`` is an input, a folder, below a file instead of a folder, exists and is not a
+        regular file (symlinks included, dangling or not), or exists and ``overwrite`` is false.
     """
     dest = Path(dest)
     for src in inputs:
@@ -66,6 +118,7 @@ def check_output_path(
             raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
     if dest.is_dir():
         raise OutputError(f"{dest}: output path is a folder; give a file name")
+    _refuse_special(dest)
     for folder in dest.parents:  # the nearest existing ancestor must be a folder
         if folder.exists() or folder.is_symlink():
             if not folder.is_dir():
@@ -74,6 +127,102 @@ def check_output_path(
     if dest.exists() and not overwrite:
         raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
     return dest
+
+
+# --- committing outputs ------------------------------------------------------------------------
+
+
+class _Renaming:
+    """Set while finished outputs are being renamed into place (see interrupt_on_signals)."""
+
+    active = 0
+    pending: int | None = None
+
+
+def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
+    """Rename each finished temporary file over its destination, checking every one first.
+
+    Raises OutputError (and deletes every temporary file not yet renamed) if a destination has
+    become unacceptable meanwhile or a rename fails.
+    """
+    done = 0
+    try:
+        for tmp, dest, overwrite in entries:  # all checks before the first rename
+            _refuse_special(dest)
+            if dest.exists() and not overwrite:
+                raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
+            try:
+                os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
+            except OSError as exc:
+                raise _write_error(dest, exc) from None
+        _Renaming.active += 1
+        try:
+            for tmp, dest, _ in entries:
+                try:
+                    os.replace(tmp, dest)
+                except OSError as exc:
+                    raise _write_error(dest, exc) from None
+                done += 1
+        finally:
+            _Renaming.active -= 1
+    except BaseException:
+        for tmp, _, _ in entries[done:]:
+            with suppress(OSError):
+                tmp.unlink()
+        raise
+    if _Renaming.pending is not None and not _Renaming.active:
+        _Renaming.pending = None
+        raise KeyboardInterrupt  # a signal arrived during the renames: act on it now
+
+
+class _Batch:
+    def __init__(self) -> None:
+        self.entries: list[tuple[Path, Path, bool]] = []
+        self.created: list[Path] = []  # folders made for the outputs, outermost first
+
+
+_BATCH: contextvars.ContextVar[_Batch | None] = contextvars.ContextVar("vehicle_detection_output_batch", default=None)
+
+
+@contextmanager
+def output_batch() -> Iterator[None]:
+    """Commit every :func:`atomic_output` completed inside the block together, at its end.
+
+    Inside the block a finished output stays under its hidden ``.partial`` name. When the block
+    succeeds, every destination is checked again and all are renamed into place (in the order
+    they were finished); when it raises (including ``KeyboardInterrupt``), every temporary file
+    is deleted, so the previous outputs, if any, are left exactly as they were, and folders
+    created for the outputs are removed again if empty. Nested batches join the outer one.
+    """
+    if _BATCH.get() is not None:
+        yield
+        return
+    batch = _Batch()
+    token = _BATCH.set(batch)
+    try:
+        yield
+    except BaseException:
+        _BATCH.reset(token)
+        for tmp, _, _ in batch.entries:
+            with suppress(OSError):
+                tmp.unlink()
+        for folder in reversed(batch.created):
+            with suppress(OSError):
+                folder.rmdir()  # only if empty
+        raise
+    _BATCH.reset(token)
+    _commit(batch.entries)
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """Create ``folder`` and missing ancestors; return those created, outermost first."""
+    missing = []
+    for f in (folder, *folder.parents):
+        if f.exists() or f.is_symlink():
+            break
+        missing.append(f)
+    folder.mkdir(parents=True, exist_ok=True)
+    return list(reversed(missing))
 
 
 @contextmanager
@@ -86,7 +235,9 @@ def atomic_output(
     """Yield a temporary path beside ``dest``; rename it to ``dest`` when the block succeeds.
 
     Missing parent folders are created. On any exception (including ``KeyboardInterrupt``) the
-    temporary file is deleted and ``dest`` is left as it was.
+    temporary file is deleted and ``dest`` is left as it was: an existing file being replaced
+    is only replaced by the finished new one. Inside :func:`output_batch` the rename waits for
+    the end of the batch.
 
     Parameters
     ----------
@@ -100,26 +251,82 @@ def atomic_output(
     Path
         The temporary file to write (it exists, empty). Writers that infer the format from the
         file name (ffmpeg) must be told the format explicitly: the name ends in ``.partial``.
+
+    Raises
+    ------
+    OutputError
+        As :func:`check_output_path`; also when writing fails with an ``OSError`` (disk full,
+        quota, read-only file system, permission denied...): the message names ``dest``.
     """
     dest = check_output_path(dest, overwrite=overwrite, inputs=inputs)
+    batch = _BATCH.get()
     try:
-        dest.parent.mkdir(parents=True, exist_ok=True)
+        created = _make_parents(dest.parent)
+        if batch is not None:
+            batch.created.extend(created)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent)
     except OSError as exc:
         raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        yield tmp
-        # Re-check: another process may have created dest while we were writing.
-        if dest.exists() and not overwrite:
-            raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, dest)
+        try:
+            yield tmp
+        except VehicleDetectionError:
+            raise
+        except OSError as exc:  # ENOSPC, EDQUOT, EROFS, EACCES, EIO... while writing
+            raise _write_error(dest, exc) from exc
+        if batch is not None:
+            batch.entries.append((tmp, dest, overwrite))
+        else:
+            _commit([(tmp, dest, overwrite)])
     except BaseException:
         with suppress(OSError):
             tmp.unlink()
         raise
+
+
+# --- signals -----------------------------------------------------------------------------------
+
+
+@contextmanager
+def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP")) -> Iterator[None]:
+    """Within the block, SIGINT, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` like Ctrl-C.
+
+    So ``timeout``, ``docker stop``, systemd and a closed terminal get the same clean-up as
+    Ctrl-C: temporary files deleted, previous outputs left intact. Only the first signal raises
+    (a second one during the clean-up is ignored), and a signal that arrives while finished
+    outputs are being renamed into place is acted on once the renames are done. Installed only
+    when called from the main thread; the previous handlers are restored on exit.
+    """
+    nums = [getattr(signal, name) for name in signals if hasattr(signal, name)]
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = False
+
+    def handler(signum, frame):
+        nonlocal fired
+        if fired:
+            return
+        if _Renaming.active:
+            _Renaming.pending = signum
+            return
+        fired = True
+        raise KeyboardInterrupt
+
+    previous = {}
+    try:
+        for num in nums:
+            previous[num] = signal.signal(num, handler)
+        yield
+    finally:
+        for num, old in previous.items():
+            signal.signal(num, old if old is not None else signal.SIG_DFL)
+        _Renaming.pending = None
+
+
+# --- reading -----------------------------------------------------------------------------------
 
 
 def read_text(path: str | os.PathLike, what: str, kind: str, *, encoding: str = "utf-8") -> str:

@@ -431,17 +431,25 @@ def train(
     """
     from joblib import Parallel, delayed
 
-    extract_features(dataset.images[:2], config)  # compile the kernels outside the timing
-    t = time.perf_counter()
-    features = extract_features(dataset.images, config)
-    feature_s = time.perf_counter() - t
+    from .data import check_split_sizes
+    from .errors import InputError
+
     labels = np.asarray(dataset.labels)
-    metrics = {}
-    if evaluate:
+    splits = {}
+    if evaluate:  # too small a data set is refused here, before any work, not by scikit-learn
+        check_split_sizes(labels, dataset.groups, test_size=test_size)
         splits = {
             "random_split": split_indices(labels, test_size=test_size, random_state=random_state),
             "grouped_split": split_indices(labels, dataset.groups, test_size=test_size, random_state=random_state),
         }
+    elif len(np.unique(labels)) < 2:
+        raise InputError(f"dataset: training needs images of both classes, got only label(s) {np.unique(labels).tolist()}")
+    extract_features(dataset.images[:2], config)  # compile the kernels outside the timing
+    t = time.perf_counter()
+    features = extract_features(dataset.images, config)
+    feature_s = time.perf_counter() - t
+    metrics = {}
+    if evaluate:
         results = Parallel(n_jobs=n_jobs, backend="threading")(
             delayed(_evaluate_split)(features, labels, config, tr, te, C) for tr, te in splits.values()
         )
@@ -523,6 +531,9 @@ def sweep(
     """
     from joblib import Parallel, delayed
 
+    from .data import check_split_sizes
+
+    check_split_sizes(dataset.labels, dataset.groups, test_size=test_size)  # before any work
     rows = Parallel(n_jobs=n_jobs)(
         delayed(_sweep_one)(dataset.images, dataset.labels, dataset.groups, cfg, C, test_size, random_state) for cfg in configs
     )

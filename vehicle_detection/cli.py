@@ -6,7 +6,10 @@ exit non-zero; ``--debug`` prints the traceback before that line (the exit code 
 
 Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command line;
 3 bad input file; 4 bad or mismatched model file; 5 output refused or not writable;
-6 download failed; 130 interrupted (Ctrl-C).
+6 download failed; 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
+
+A closed standard output (``vehicle-detection ... | head -1``) does not stop a run: the rest of
+the report is discarded, the outputs are written, and the exit status is the run's own.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import os
 import sys
 import time
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
@@ -101,8 +105,8 @@ def _feature_config(args):
             spatial_size=args.spatial_size,
             hist_bins=args.hist_bins,
         )
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    except ValueError as exc:  # an option value that cannot work: a bad command line
+        raise UsageError(str(exc)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -221,19 +225,16 @@ def _train_report(model) -> dict:
 
 def _cmd_train(args) -> int:
     from .classifier import DEFAULT_C, train
-    from .data import load_dataset
+    from .data import check_split_sizes, default_data_dir, load_dataset
 
     config = _feature_config(args)
+    root = default_data_dir(args.data_dir)
     if args.model is not None:
-        from ._files import check_output_path
-        from .data import CLASSES, default_data_dir
-
-        # The archives are inputs: --model must never replace one, even with --overwrite.
-        root = default_data_dir(args.data_dir)
-        check_output_path(args.model, overwrite=args.overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
+        _check_model_output(args.model, root, overwrite=args.overwrite)
     t = time.perf_counter()
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates)
     load_s = time.perf_counter() - t
+    check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed)
     model = model.replace(metrics={**model.metrics, "load_seconds": round(load_s, 3), "drop_duplicates": bool(args.drop_duplicates)})
     report = _train_report(model)
@@ -257,25 +258,41 @@ def _cmd_train(args) -> int:
     return 0
 
 
+def _check_model_output(model, root: Path, *, overwrite: bool) -> None:
+    """The training data are inputs: ``--model`` may not be an archive or lie in a class folder."""
+    from ._files import check_output_path
+    from .data import CLASSES
+
+    model = Path(model)
+    check_output_path(model, overwrite=overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
+    target = model.resolve()
+    for cls in CLASSES:
+        folder = (root / cls).resolve()
+        if target == folder or folder in target.parents:
+            raise OutputError(
+                f"{model}: model path is inside the training images folder {root / cls}; save the model elsewhere"
+            )
+
+
 def _csv_ints(text: str, what: str) -> list[int]:
     try:
         return [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise InputError(f"--{what}: expected comma-separated integers, got {text!r}") from None
+        raise UsageError(f"--{what}: expected comma-separated integers, got {text!r}") from None
 
 
 def _cmd_sweep(args) -> int:
     import numpy as np
 
     from .classifier import DEFAULT_C, split_indices, sweep, sweep_configs
-    from .data import load_dataset
+    from .data import CLASSES, MIN_IMAGES_PER_CLASS, check_split_sizes, default_data_dir, load_dataset
 
     try:
         pairs = [tuple(int(v) for v in p.lower().split("x")) for p in args.color_features.split(",") if p.strip()]
         if any(len(p) != 2 for p in pairs):
             raise ValueError
     except ValueError:
-        raise InputError(f"--color-features: expected pairs like 16x16,0x0, got {args.color_features!r}") from None
+        raise UsageError(f"--color-features: expected pairs like 16x16,0x0, got {args.color_features!r}") from None
     try:
         configs = sweep_configs(
             color_spaces=tuple(c.strip() for c in args.color_spaces.split(",") if c.strip()),
@@ -287,12 +304,18 @@ def _cmd_sweep(args) -> int:
             signed=tuple(bool(v) for v in _csv_ints(args.signed, "signed")),
             hog_sqrt=tuple(bool(v) for v in _csv_ints(args.hog_sqrt, "hog-sqrt")),
         )
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    except ValueError as exc:  # an option value that cannot work: a bad command line
+        raise UsageError(str(exc)) from None
+    least = MIN_IMAGES_PER_CLASS * len(CLASSES)
+    if args.subsample is not None and args.subsample < least:
+        raise UsageError(f"--subsample {args.subsample}: too few images; at least {least} ({MIN_IMAGES_PER_CLASS} per class) are needed")
+    root = default_data_dir(args.data_dir)
     ds = load_dataset(args.data_dir)
-    if args.subsample and args.subsample < len(ds):
+    check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any work, not by scikit-learn
+    if args.subsample and args.subsample < len(ds) - 2 * len(CLASSES):  # else: all of it
         _, keep = split_indices(ds.labels, test_size=args.subsample / len(ds), random_state=0)
         ds = ds.subset(np.sort(keep))
+        check_split_sizes(ds.labels, ds.groups, name=f"{root} (--subsample {args.subsample})")
     print(f"sweeping {len(configs)} configurations on {len(ds)} images with {args.jobs} workers", file=sys.stderr)
     rows = sweep(ds, configs, C=DEFAULT_C, n_jobs=args.jobs)
     if args.json:
@@ -333,10 +356,10 @@ def _default_outputs(inp: Path, kind: str):
 
 
 def _cmd_detect(args) -> int:
-    from ._files import check_output_path
+    from ._files import check_output_path, output_batch
     from .detections import Detections
     from .drawing import draw_detections
-    from .images import IMAGE_EXTENSIONS, list_images, read_image, write_image
+    from .images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
     from .tables import write_boxes_csv
     from .video import process_video
 
@@ -359,53 +382,46 @@ def _cmd_detect(args) -> int:
     if out.resolve() == boxes.resolve():
         raise OutputError(f"{out}: the annotated output and the boxes CSV cannot be the same file")
     if kind == "image":
-        from PIL import Image
-
-        if out.suffix.lower() not in Image.registered_extensions():
-            raise OutputError(f"{out}: unknown image extension {out.suffix!r} for the annotated image")
+        check_image_output(out)  # a format Pillow can write, before any work
     if kind == "folder" and out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder; the annotated images of a folder go into a folder")
     for o in (out, boxes):
         if kind != "folder" or o is boxes:
             check_output_path(o, overwrite=args.overwrite, inputs=[inp, *model_inputs])
+    files = list_images(inp) if kind == "folder" else [inp]
+    outs = [out / f.name for f in files] if kind == "folder" else [out]
+    inputs = [*files, *model_inputs]
+    if kind == "folder":
+        for o in outs:
+            check_image_output(o)  # e.g. .webp without a WebP encoder
+            check_output_path(o, overwrite=args.overwrite, inputs=inputs)
+        check_output_path(boxes, overwrite=args.overwrite, inputs=inputs)
     detector = _load_detector(args.model, args.horizon)
     t = time.perf_counter()
-    if kind == "video":
-        table = process_video(
-            inp, out, detector=detector, boxes_csv=boxes, overwrite=args.overwrite, progress=not args.no_progress,
-            preset=args.preset, crf=args.crf,
-        )
-        n = len(table.frames())
-        print(f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)")
-        return 0
-    files = [inp] if kind == "image" else list_images(inp)
-    outs = [out] if kind == "image" else [out / f.name for f in files]
-    inputs = [*files, *model_inputs]
-    for o in [*outs, boxes]:
-        check_output_path(o, overwrite=args.overwrite, inputs=inputs)
-    found = []
-    new_folders = [d for d in (out, boxes.parent) if kind == "folder" and not d.exists()]
-    written = []
-    try:
-        for i, (f, o) in enumerate(zip(files, outs)):
-            image = read_image(f)
-            det = detector.detect_image(image).replace(frame=i)
-            written.append(write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs))
-            found.append(det)
-            print(f"{f}: {len(det)} vehicles -> {o}")
-        write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs)
-    except BaseException:
-        # A folder that fails part-way (a corrupt image, Ctrl-C) must not leave a half set of
-        # annotated images that looks like a result: remove what this run wrote.
-        for o in written:
-            o.unlink(missing_ok=True)
-        for d in new_folders:
-            try:
-                d.rmdir()  # only if empty
-            except OSError:
-                pass
-        raise
-    print(f"boxes: {boxes}")
+    # All outputs of the run are committed together at the end: a run that fails or is stopped
+    # part-way (a corrupt image, Ctrl-C, SIGTERM, a full disk) leaves no new file, no .partial
+    # file, no new folder, and every previous output (--overwrite) exactly as it was.
+    with output_batch():
+        if kind == "video":
+            table = process_video(
+                inp, out, detector=detector, overwrite=args.overwrite, progress=not args.no_progress,
+                preset=args.preset, crf=args.crf,
+            )
+            write_boxes_csv(boxes, table, overwrite=args.overwrite, inputs=inputs)
+            n = len(table.frames())
+            report = [f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)"]
+        else:
+            found = []
+            for i, (f, o) in enumerate(zip(files, outs)):
+                image = read_image(f)
+                det = detector.detect_image(image).replace(frame=i)
+                write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs)
+                found.append(det)
+                print(f"{f}: {len(det)} vehicles -> {o}")  # progress; o appears at the end
+            write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs)
+            report = [f"boxes: {boxes}"]
+    for line in report:
+        print(line)
     return 0
 
 
@@ -508,13 +524,81 @@ _COMMANDS = {
 }
 
 
+class _GuardedStdout:
+    """Standard output that turns quiet, instead of failing, once its reader has gone.
+
+    On the first ``BrokenPipeError`` (``... | head -1``) the file descriptor is pointed at
+    ``os.devnull``, so that the rest of the report, and the interpreter's final flush, are
+    discarded silently while the run finishes its real outputs.
+    """
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.broken = False
+
+    def _mute(self) -> None:
+        self.broken = True
+        try:
+            fd = self._stream.fileno()
+            devnull = os.open(os.devnull, os.O_WRONLY)
+        except (OSError, ValueError, AttributeError):
+            return
+        try:
+            os.dup2(devnull, fd)
+        finally:
+            os.close(devnull)
+
+    def write(self, text: str) -> int:
+        if not self.broken:
+            try:
+                return self._stream.write(text)
+            except BrokenPipeError:
+                self._mute()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.broken:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._mute()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextmanager
+def _guarded_stdout():
+    real = sys.stdout
+    if real is None:
+        yield
+        return
+    guard = sys.stdout = _GuardedStdout(real)
+    try:
+        yield
+    finally:
+        guard.flush()  # a pipe closed early shows up here when stdout is block-buffered
+        if sys.stdout is guard:
+            sys.stdout = real
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see module docstring)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    with _guarded_stdout():
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        return _run(args)
+
+
+def _run(args) -> int:
+    from ._files import interrupt_on_signals
+
     # With --debug the traceback comes first, then the same one-line message and exit code.
+    # SIGTERM (timeout, docker stop, systemd) and SIGHUP (a closed terminal) stop a run like
+    # Ctrl-C: KeyboardInterrupt, so the same clean-up runs and the exit status is 130.
     try:
-        return _COMMANDS[args.command](args)
+        with interrupt_on_signals():
+            return _COMMANDS[args.command](args)
     except KeyboardInterrupt:
         if args.debug:
             traceback.print_exc()

@@ -30,12 +30,23 @@ import numpy as np
 from .errors import InputError
 from .images import decode_image
 
-__all__ = ["DATA_ENV", "CLASSES", "Dataset", "default_data_dir", "load_dataset", "find_duplicates"]
+__all__ = [
+    "DATA_ENV",
+    "CLASSES",
+    "MIN_IMAGES_PER_CLASS",
+    "Dataset",
+    "default_data_dir",
+    "load_dataset",
+    "find_duplicates",
+    "check_split_sizes",
+]
 
 DATA_ENV = "VEHICLE_DETECTION_DATA"
 #: Archive / top folder name -> label.
 CLASSES = {"vehicles": 1, "non-vehicles": 0}
 PATCH_SHAPE = (64, 64, 3)
+#: Fewest images of each class that training and the sweep accept (see :func:`check_split_sizes`).
+MIN_IMAGES_PER_CLASS = 5
 
 
 def default_data_dir(data_dir: str | os.PathLike | None = None) -> Path:
@@ -230,3 +241,56 @@ def load_dataset(
             keep[dup[1:]] = False
         ds = ds.subset(keep)
     return ds
+
+
+def check_split_sizes(labels, groups, *, test_size: float = 0.2, name: str = "dataset") -> None:
+    """Refuse a training set too small for the random and the grouped train/test splits.
+
+    Cheap (labels and groups only): call it before extracting features. The rules:
+
+    * each class needs at least :data:`MIN_IMAGES_PER_CLASS` images, so that the stratified
+      split puts both classes on both sides;
+    * each class needs more groups than the grouped split can leave out of its training side
+      (``ceil(test_size * G)`` held out of ``G`` groups, as
+      :class:`~sklearn.model_selection.GroupShuffleSplit` counts), so that the training side
+      always holds both classes whatever groups are drawn.
+
+    Parameters
+    ----------
+    labels : array of int, shape (N,)
+        1 vehicle, 0 non-vehicle.
+    groups : array of int, shape (N,)
+        :attr:`Dataset.groups`.
+    test_size : float
+        Fraction held out, in (0, 1).
+    name : str
+        The data folder (or what the data are), for the message.
+
+    Raises
+    ------
+    InputError
+        Naming ``name``, how many images and groups each class has, and how many are needed.
+    """
+    import math
+
+    labels, groups = np.asarray(labels), np.asarray(groups)
+    n = len(labels)
+    n_groups = len(np.unique(groups))
+    # sklearn's shuffle-split arithmetic: ceil(test_size * n) held out, floor((1 - test_size) * n) trained on.
+    left_out = n_groups - math.floor((1.0 - test_size) * n_groups)
+    need_groups = max(2, left_out + 1)
+    have = {cls: (int(np.sum(labels == lab)), len(np.unique(groups[labels == lab]))) for cls, lab in CLASSES.items()}
+    n_test = math.ceil(test_size * n)
+    n_train = math.floor((1.0 - test_size) * n)
+    if (
+        all(k >= MIN_IMAGES_PER_CLASS and g >= need_groups for k, g in have.values())
+        and n_test >= len(CLASSES)
+        and n_train >= len(CLASSES)
+    ):
+        return
+    counts = ", ".join(f"{cls} {k} images in {g} groups" for cls, (k, g) in have.items())
+    raise InputError(
+        f"{name}: too few training images for the random and grouped train/test splits ({counts}); each class needs at "
+        f"least {MIN_IMAGES_PER_CLASS} images and at least {need_groups} groups (the grouped split leaves {left_out} of "
+        f"the {n_groups} groups out of training; a group is a block of consecutive file numbers of one folder)"
+    )

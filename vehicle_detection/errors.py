@@ -9,6 +9,7 @@ from __future__ import annotations
 
 __all__ = [
     "VehicleDetectionError",
+    "UsageError",
     "InputError",
     "ModelError",
     "OutputError",
@@ -20,6 +21,15 @@ class VehicleDetectionError(Exception):
     """Base class of the errors a user can cause; ``exit_code`` is the CLI's exit status."""
 
     exit_code = 3
+
+
+class UsageError(VehicleDetectionError, ValueError):
+    """A command-line option has a value that cannot work (exit status 2, like argparse's errors).
+
+    The message names the option and the problem.
+    """
+
+    exit_code = 2
 
 
 class InputError(VehicleDetectionError, ValueError):
@@ -48,8 +58,3 @@ class DownloadError(VehicleDetectionError, OSError):
 
     exit_code = 6
 
-
-class UsageError(VehicleDetectionError):
-    """Options that do not go together (exit status 2, as for any bad command line)."""
-
-    exit_code = 2

@@ -66,6 +66,9 @@ __all__ = [
 FEATURE_FORMAT = 1
 
 COLOR_SPACES = ("RGB", "HSV", "LUV", "HLS", "YUV", "YCrCb")
+#: Fewest HOG blocks along a window side: the fast search (``search._score_hog``) treats the first,
+#: the inner and the last block of a window as different border classes, and needs all three.
+MIN_BLOCKS_PER_WINDOW = 3
 _CV2_CODES = {
     "HSV": cv2.COLOR_RGB2HSV,
     "LUV": cv2.COLOR_RGB2LUV,
@@ -92,7 +95,8 @@ class FeatureConfig:
     pixels_per_cell : int
         HOG cell side, in pixels; must divide ``window``.
     cells_per_block : int
-        HOG block side, in cells.
+        HOG block side, in cells; at most ``window // pixels_per_cell - 2``, so that a window
+        holds at least :data:`MIN_BLOCKS_PER_WINDOW` (3) blocks along a side.
     signed : bool
         Signed gradient orientations (0-360 degrees) instead of unsigned (0-180). Signed bins
         keep the polarity of edges (a car's dark underside against the bright road), which
@@ -148,8 +152,19 @@ class FeatureConfig:
                 problems.append("orientations must be within 2..64")
             if self.pixels_per_cell < 4 or self.window % self.pixels_per_cell:
                 problems.append("pixels_per_cell must be >= 4 and divide window")
-            elif self.cells_per_block >= self.window // self.pixels_per_cell:
-                problems.append("cells_per_block must be smaller than the cells per window")
+            elif self.window // self.pixels_per_cell < MIN_BLOCKS_PER_WINDOW:
+                problems.append(
+                    f"pixels_per_cell {self.pixels_per_cell} leaves {self.window // self.pixels_per_cell} cells per "
+                    f"window of {self.window}; the sliding-window search needs at least {MIN_BLOCKS_PER_WINDOW} blocks "
+                    f"(a first, an inner and a last) along a side"
+                )
+            elif self.window // self.pixels_per_cell - self.cells_per_block + 1 < MIN_BLOCKS_PER_WINDOW:
+                cpw = self.window // self.pixels_per_cell
+                problems.append(
+                    f"cells_per_block must be at most {cpw - MIN_BLOCKS_PER_WINDOW + 1} with {cpw} cells per window "
+                    f"(got {self.cells_per_block}, which leaves {max(0, cpw - self.cells_per_block + 1)} blocks along a "
+                    f"side); the sliding-window search needs at least {MIN_BLOCKS_PER_WINDOW} (a first, an inner and a last)"
+                )
             if self.spatial_size and self.window % self.spatial_size:
                 problems.append("spatial_size must be 0 or divide window")
             elif self.spatial_size and self.pixels_per_cell % (self.window // self.spatial_size):

@@ -15,7 +15,15 @@ RGBA, LA, palette         alpha dropped (no blending), palette expanded
                           dropped), not Pillow's truncation to the high byte
 CMYK, YCbCr               converted to RGB by Pillow
 float images              refused: 0-1 versus 0-255 is ambiguous (the classic bug)
+EXIF orientation tag      applied (rotated / mirrored upright), as browsers and
+                          ``PIL.ImageOps.exif_transpose`` do
 ========================  ==========================================================
+
+Frame shapes are checked before the pixels are decoded (:func:`check_frame_shape`): the search
+scales every frame to 720 pixels high keeping its shape, so a 20000x50 picture (3 KB as a PNG)
+would need gigabytes. Frames wider than 8:1 or taller than 1:4 (width:height) are refused, and so
+is any frame larger than 720 x 5760 pixels once scaled to the search height. Pillow's
+decompression-bomb limit (100 megapixels) applies as well.
 
 Arrays passed to the public API go through :func:`as_rgb_uint8`, which applies the same rules to
 arrays (and refuses floats), so that a BGR/float/grey mix-up fails loudly instead of silently
@@ -25,6 +33,7 @@ order, decodes only 16-bit colour files, and its output is reordered to RGB at o
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 from pathlib import Path
@@ -33,14 +42,112 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from ._files import atomic_output
-from .errors import InputError
+from .errors import InputError, OutputError
 
-__all__ = ["IMAGE_EXTENSIONS", "read_image", "decode_image", "as_rgb_uint8", "write_image", "list_images"]
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "MAX_WIDTH_TO_HEIGHT",
+    "MAX_HEIGHT_TO_WIDTH",
+    "SEARCH_HEIGHT",
+    "MAX_SCALED_PIXELS",
+    "check_frame_shape",
+    "check_image_output",
+    "read_image",
+    "decode_image",
+    "as_rgb_uint8",
+    "write_image",
+    "list_images",
+]
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 
 # Pillow refuses to open images larger than this many pixels (decompression bombs).
 Image.MAX_IMAGE_PIXELS = 100_000_000
+
+#: Widest accepted frame, width / height (a 1280x720 dashcam frame is 1.78; a 360-degree
+#: panorama strip 6 to 8).
+MAX_WIDTH_TO_HEIGHT = 8
+#: Tallest accepted frame, height / width (a phone video shot upright is 1.78).
+MAX_HEIGHT_TO_WIDTH = 4
+#: Height every frame is scaled to before the search (:attr:`SearchPlan.reference_height`).
+SEARCH_HEIGHT = 720
+#: Largest frame once scaled to ``reference_height`` (default: 720 x 5760, the widest frame).
+MAX_SCALED_PIXELS = SEARCH_HEIGHT * SEARCH_HEIGHT * MAX_WIDTH_TO_HEIGHT
+
+
+def check_frame_shape(height: int, width: int, name: str = "image", *, reference_height: int = SEARCH_HEIGHT) -> None:
+    """Refuse a frame whose shape would make the search use unbounded memory.
+
+    The search scales every frame to ``reference_height`` pixels high keeping its shape, so
+    memory grows with the width-to-height ratio, not with the file's size: a 100000x1 PNG would
+    become 72 million x 720 pixels. Call this before decoding (images) or before the first frame
+    (videos: :func:`vehicle_detection.video.probe_video` gives the size).
+
+    Parameters
+    ----------
+    height, width : int
+        The upright frame size in pixels.
+    name : str
+        The file, for the message.
+    reference_height : int
+        Height the frame will be scaled to (720 by default).
+
+    Raises
+    ------
+    InputError
+        If a side is < 1, the frame is wider than ``MAX_WIDTH_TO_HEIGHT``:1 or taller than
+        1:``MAX_HEIGHT_TO_WIDTH``, or it exceeds ``MAX_SCALED_PIXELS`` once scaled.
+    """
+    height, width = int(height), int(width)
+    if height < 1 or width < 1:
+        raise InputError(f"{name}: empty image of {width}x{height} pixels")
+    if width > MAX_WIDTH_TO_HEIGHT * height:
+        raise InputError(
+            f"{name}: image of {width}x{height} pixels is too wide (more than {MAX_WIDTH_TO_HEIGHT}:1); crop it first"
+        )
+    if height > MAX_HEIGHT_TO_WIDTH * width:
+        raise InputError(
+            f"{name}: image of {width}x{height} pixels is too tall (more than 1:{MAX_HEIGHT_TO_WIDTH}); crop it first"
+        )
+    scaled_width = max(1, round(width * reference_height / height))
+    if scaled_width * reference_height > MAX_SCALED_PIXELS:
+        raise InputError(
+            f"{name}: image of {width}x{height} pixels would be {scaled_width}x{reference_height} once scaled "
+            f"to the search height, more than {MAX_SCALED_PIXELS} pixels"
+        )
+
+
+# EXIF orientation (tag 0x0112) -> how to turn the stored pixels upright.
+_ORIENTATION_TAG = 0x0112
+
+
+def _exif_orientation(img: Image.Image) -> int:
+    try:
+        value = int(img.getexif().get(_ORIENTATION_TAG, 1))
+    except Exception:  # a damaged EXIF block does not make the pixels unreadable
+        return 1
+    return value if 1 <= value <= 8 else 1
+
+
+def _orient(arr: np.ndarray, orientation: int) -> np.ndarray:
+    """Pixels stored with EXIF ``orientation`` turned upright (what exif_transpose shows)."""
+    if orientation == 2:
+        arr = arr[:, ::-1]
+    elif orientation == 3:
+        arr = arr[::-1, ::-1]
+    elif orientation == 4:
+        arr = arr[::-1]
+    elif orientation == 5:
+        arr = arr.swapaxes(0, 1)
+    elif orientation == 6:
+        arr = arr.swapaxes(0, 1)[:, ::-1]
+    elif orientation == 7:
+        arr = arr[::-1, ::-1].swapaxes(0, 1)
+    elif orientation == 8:
+        arr = arr.swapaxes(0, 1)[::-1]
+    else:
+        return arr
+    return np.ascontiguousarray(arr)
 
 
 def _from_pil(img: Image.Image, name: str) -> np.ndarray:
@@ -102,18 +209,41 @@ def decode_image(data: bytes, name: str = "<bytes>") -> np.ndarray:
     Raises
     ------
     InputError
-        If the bytes are empty, truncated, or not an image Pillow can read.
+        If the bytes are empty, truncated, or not an image Pillow can read, or the shape is
+        refused by :func:`check_frame_shape` (checked before the pixels are decoded).
     """
     if not data:
         raise InputError(f"{name}: empty file, not an image")
     try:
         with Image.open(io.BytesIO(data)) as img:
+            stored_size = img.size
+            width, height = stored_size
+            # Before the pixels are decoded. A PNG may keep its EXIF after the pixels (Pillow
+            # would decode them to find it): then only the shapes refused either way round.
+            if img.format != "PNG" or "exif" in img.info:
+                file_orientation = _exif_orientation(img)
+                if file_orientation >= 5:  # stored sideways
+                    width, height = height, width
+                check_frame_shape(height, width, name)
+            else:
+                file_orientation = 1
+                if max(width, height) > MAX_WIDTH_TO_HEIGHT * min(width, height):
+                    check_frame_shape(height, width, name)
             img.load()  # Pillow checks the whole file (truncation) first
+            # What is left to apply: Pillow turns TIFFs upright itself while loading (and drops
+            # the tag); a PNG's eXIf chunk after the pixels is only known now.
+            orientation = _exif_orientation(img)
+            if file_orientation == 1:
+                file_orientation = orientation
+            arr = None
             if _is_16bit_colour(img, data):
-                arr = _decode_16bit_colour(data, img.size)
-                if arr is not None:
-                    return as_rgb_uint8(arr, name=name)  # round(v / 257)
-            return _from_pil(img, name)
+                raw = _decode_16bit_colour(data, stored_size)  # OpenCV: stored orientation
+                if raw is not None:
+                    arr = _orient(as_rgb_uint8(raw, name=name), file_orientation)  # round(v / 257)
+            if arr is None:
+                arr = _orient(_from_pil(img, name), orientation)
+        check_frame_shape(arr.shape[0], arr.shape[1], name)
+        return arr
     except InputError:
         raise
     except UnidentifiedImageError:
@@ -195,6 +325,40 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     return arr
 
 
+@functools.lru_cache(maxsize=None)
+def _writable_rgb_format(fmt: str) -> str | None:
+    """None if Pillow can write an RGB image as ``fmt``, else why not."""
+    try:
+        Image.new("RGB", (8, 8)).save(io.BytesIO(), format=fmt)
+    except KeyError:
+        return "Pillow can read this format but not write it"
+    except Exception as exc:  # "cannot write mode RGB as XBM", "HDF5 save handler not installed"
+        return str(exc) or type(exc).__name__
+    return None
+
+
+def check_image_output(path: str | os.PathLike) -> str:
+    """The Pillow format an RGB image written to ``path`` would have; refuse if there is none.
+
+    Checked from the extension (case-insensitive) with a trial write of a tiny RGB image to
+    memory, so that an extension Pillow reads but cannot write (``.xbm``, ``.h5``, ``.psd``) is
+    refused before any work.
+
+    Raises
+    ------
+    OutputError
+        Unknown extension, or a format Pillow cannot write in RGB.
+    """
+    path = Path(path)
+    fmt = Image.registered_extensions().get(path.suffix.lower())
+    if fmt is None:
+        raise OutputError(f"{path}: unknown image extension {path.suffix!r}; use .png or .jpg")
+    why = _writable_rgb_format(fmt)
+    if why is not None:
+        raise OutputError(f"{path}: cannot write {fmt} images ({why}); use .png or .jpg")
+    return fmt
+
+
 def write_image(path: str | os.PathLike, image, *, overwrite: bool = False, inputs=()) -> Path:
     """Write an RGB ``uint8`` image (format from the file extension), atomically.
 
@@ -212,12 +376,19 @@ def write_image(path: str | os.PathLike, image, *, overwrite: bool = False, inpu
     Returns
     -------
     Path
+
+    Raises
+    ------
+    InputError
+        If ``image`` is not an image array (see :func:`as_rgb_uint8`).
+    OutputError
+        If the extension is not a format Pillow can write (:func:`check_image_output`), the
+        output is refused (:func:`vehicle_detection._files.check_output_path`), or writing
+        fails (disk full, ...); the message names ``path``.
     """
     rgb = as_rgb_uint8(image, name=str(path))
     path = Path(path)
-    fmt = Image.registered_extensions().get(path.suffix.lower())
-    if fmt is None:
-        raise InputError(f"{path}: unknown image extension {path.suffix!r}")
+    fmt = check_image_output(path)
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         Image.fromarray(rgb).save(tmp, format=fmt)
     return path
