@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
 
 __all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "inset_boxes", "match_boxes"]
 
@@ -181,6 +180,8 @@ def match_boxes(iou: ArrayLike, threshold: float) -> tuple[np.ndarray, np.ndarra
     valid = iou >= threshold
     if not valid.any():
         return empty, empty
+    from scipy.optimize import linear_sum_assignment  # imported on first use: 0.3 s at start-up
+
     bonus = float(min(iou.shape) + 1)
     rows, cols = linear_sum_assignment(np.where(valid, bonus + iou, 0.0), maximize=True)
     keep = valid[rows, cols]
