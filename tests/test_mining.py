@@ -332,3 +332,10 @@ def test_cli_train_with_extra_negatives(tmp_path, capsys):
     assert "images: 220 (" in out and "non-vehicles/HardNegatives 20" in out
     assert json.loads(out.strip().splitlines()[-1])["n_images"] == 220
     assert VehicleClassifier.load(model).metrics["extra_negatives"] == {"non-vehicles/HardNegatives": 20}
+
+
+def test_labels_of_an_image_folder_must_name_its_images(tiny):
+    folder, _, detector, _ = tiny
+    ann = _ann({0: {"cars": [], "file": "f0.png"}, 1: {"cars": [], "file": "f2.png"}})
+    with pytest.raises(InputError, match="frame 1 is labelled as f2.png, but image 1 of .* is f1.png"):
+        mine_negatives([MiningSource(folder, ann)], detector)

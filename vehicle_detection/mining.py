@@ -231,13 +231,18 @@ def negative_mask(
 # --- mining ---------------------------------------------------------------------------------------
 
 
-def _frames_of(path: Path) -> Iterator[tuple[int, Callable[[], np.ndarray]]]:
+def _frames_of(path: Path, labels: Annotations | None = None) -> Iterator[tuple[int, Callable[[], np.ndarray]]]:
     """``(index, load)`` per frame of a video or image folder; ``load()`` gives the RGB frame."""
     from .images import list_images, read_image
     from .video import read_frames
 
     if path.is_dir():
-        for i, f in enumerate(list_images(path)):
+        files = list_images(path)
+        for i, lab in (labels.frames.items() if labels is not None else ()):
+            if lab.file is not None and (i >= len(files) or files[i].name != lab.file):
+                found = files[i].name if i < len(files) else "missing"
+                raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {path} is {found}")
+        for i, f in enumerate(files):
             yield i, (lambda f=f: read_image(f))
         return
     if not path.exists():
@@ -330,7 +335,7 @@ def mine_negatives(
     for source, name in zip(sources, names):
         st = stats[name] = {"frames": 0, "skipped_frames": 0, "hot": 0, "far": 0, "duplicates": 0, "kept": 0}
         recent: deque = deque()  # (frame, boxes (k, 4), scale_index (k,)) of kept windows
-        for index, load in _frames_of(source.path):
+        for index, load in _frames_of(source.path, source.labels):
             if index % every or (wanted is not None and index not in wanted):
                 continue
             labels = None
@@ -351,7 +356,7 @@ def mine_negatives(
                 recent.popleft()
             keep = np.zeros(len(wins), bool)
             kept_boxes = [(b, k) for _, bs, ks in recent for b, k in zip(bs, ks)]
-            crops = window_patches(frame, wins, model, plan) if len(wins) else np.zeros((0, 64, 64, 3), np.uint8)
+            crops = window_patches(frame, wins, model, plan)
             for j in range(len(wins)):
                 box, k = wins.xyxy[j], int(wins.data["scale_index"][j])
                 same = [b for b, kk in kept_boxes if kk == k]
