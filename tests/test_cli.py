@@ -84,16 +84,19 @@ def csv_rows(path: Path) -> list[str]:
 # ----------------------------------------------------------------------------------------------
 
 OPTIONS = {
-    None: ["--version", "download", "train", "sweep", "detect", "evaluate", "Exit codes", "2 usage", "3 bad input",
+    None: ["--version", "download", "train", "sweep", "detect", "evaluate", "mine-negatives", "Exit codes", "2 usage", "3 bad input",
            "4 bad model", "5 output refused"],
     "download": ["--data-dir", "--no-progress", "--debug"],
-    "train": ["--data-dir", "--model", "--C", "--drop-duplicates", "--seed", "--json", "--overwrite", "--color-space",
+    "train": ["--data-dir", "--model", "--C", "--drop-duplicates", "--extra-negatives", "--seed", "--json", "--overwrite", "--color-space",
               "--hog-channels", "--orientations", "--pixels-per-cell", "--cells-per-block", "--spatial-size",
               "--hist-bins", "--debug"],
     "sweep": ["--data-dir", "--color-spaces", "--hog-channels", "--orientations", "--pixels-per-cell",
               "--cells-per-block", "--color-features", "--subsample", "--jobs", "--json", "--debug"],
     "detect": ["input", "--out", "--boxes", "--model", "--overwrite", "--no-progress", "--debug"],
     "evaluate": ["--video", "--labels", "--model", "--json", "--no-progress", "--debug"],
+    "mine-negatives": ["INPUT", "--labels", "--out", "--name", "--model", "--frames", "--every", "--threshold",
+                       "--negative-region", "--max-gap", "--max-iou", "--max-car-cover", "--dedupe-iou", "--dedupe-frames",
+                       "--overwrite", "--json", "--no-progress", "--debug"],
 }  # fmt: skip
 
 

@@ -44,6 +44,9 @@ _API = {
     "split_indices": "classifier",
     "load_dataset": "data",
     "find_duplicates": "data",
+    "MiningSource": "mining",
+    "mine_negatives": "mining",
+    "write_negatives": "mining",
     # images, video, tables, drawing
     "read_image": "images",
     "write_image": "images",
@@ -93,6 +96,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .features import FeatureConfig, extract_features
     from .geometry import box_iou, match_boxes
     from .images import list_images, read_image, write_image
+    from .mining import MiningSource, mine_negatives, write_negatives
     from .search import SearchPlan, SearchScale, search
     from .tracker import Tracker, TrackerConfig
     from .tables import read_boxes_csv, write_boxes_csv

@@ -1,6 +1,6 @@
 """The ``vehicle-detection`` command.
 
-Subcommands: ``download``, ``train``, ``sweep``, ``detect``, ``evaluate``. Errors a user can
+Subcommands: ``download``, ``train``, ``sweep``, ``detect``, ``evaluate``, ``mine-negatives``. Errors a user can
 cause, usage errors included, print one line on stderr (``vehicle-detection: error: ...``) and
 exit non-zero; ``--debug`` prints the traceback before that line (the exit code stays the same).
 
@@ -130,6 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=None, help="where to save the model (.npz); omitted: report only")
     p.add_argument("--C", type=_positive_float, default=None, help="SVM regularisation (default: the library's)")
     p.add_argument("--drop-duplicates", action="store_true", help="drop byte-identical duplicate images first")
+    p.add_argument("--extra-negatives", action="append", default=[], metavar="DIR",
+                   help="add the non-vehicle PNGs of DIR (laid out as DIR/non-vehicles/<source>/, e.g. from mine-negatives, "
+                   "or PNGs directly in DIR), each source with its own split groups; repeatable")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on the last line")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")
@@ -185,6 +188,43 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
+
+    p = sub.add_parser(
+        "mine-negatives",
+        help="cut the detector's hot windows that are not vehicles out of footage, as new training negatives",
+        description="Hard-negative mining. Searches each frame (or every k-th) of the inputs and keeps the hot windows "
+        "that are certainly not vehicles: in labelled frames (and frames between labelled ones, with the car boxes "
+        "interpolated), windows with IoU < --max-iou with every car and mostly outside the ignore regions; in "
+        "unlabelled footage, windows wholly inside a --negative-region. Near duplicates are dropped. The 64x64 patches, "
+        "as the classifier saw them, are written as PNGs to OUT/non-vehicles/NAME/ for `train --extra-negatives OUT`. "
+        "Leave out (--frames) every frame you will score later.",
+    )
+    p.add_argument("inputs", nargs="*", metavar="INPUT", help="video or folder of images without labels (needs --negative-region)")
+    p.add_argument("--labels", action="append", default=[], metavar="L.json",
+                   help="annotation file; adds the video or image folder it names, with its labels (repeatable)")
+    p.add_argument("--out", required=True, metavar="DIR", help="root folder: patches go to DIR/non-vehicles/NAME/")
+    p.add_argument("--name", default="HardNegatives", help="source folder name under non-vehicles/ (default %(default)s)")
+    p.add_argument("--model", default=None, help="model file (default: the embedded model)")
+    p.add_argument("--frames", default=None, metavar="RANGES",
+                   help="only these frame indexes, e.g. 0-89,160-250 (inclusive; default all)")
+    p.add_argument("--every", type=_positive_int, default=1, metavar="K", help="search every K-th frame (default %(default)s)")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="SVM margin above which a window is taken (default: the model's search threshold; -1 also takes "
+                   "the negatives inside the SVM margin)")
+    p.add_argument("--negative-region", action="append", default=[], metavar="X1,Y1,X2,Y2",
+                   help="a place where no vehicle can be; windows must lie wholly inside one (repeatable; required for "
+                   "inputs without labels)")
+    p.add_argument("--max-gap", type=int, default=10, help="skip frames farther than this from a labelled frame (default %(default)s)")
+    p.add_argument("--max-iou", type=_positive_float, default=0.1, help="largest IoU of a negative with any car (below; default %(default)s)")
+    p.add_argument("--max-car-cover", type=_positive_float, default=0.1,
+                   help="largest fraction of a negative's area inside a car box (below; default %(default)s)")
+    p.add_argument("--dedupe-iou", type=_positive_float, default=0.5,
+                   help="drop a window with this IoU with a kept one of the same scale (default %(default)s)")
+    p.add_argument("--dedupe-frames", type=int, default=5, help="... kept in its frame or this many frames before (default %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT/non-vehicles/NAME/ folder")
+    p.add_argument("--json", action="store_true", help="print the counts as one JSON object on the last line")
+    p.add_argument("--no-progress", action="store_true")
+    _add_common(p)
     return parser
 
 
@@ -232,11 +272,17 @@ def _cmd_train(args) -> int:
     if args.model is not None:
         _check_model_output(args.model, root, overwrite=args.overwrite)
     t = time.perf_counter()
-    ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates)
+    ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates, extra_negatives=args.extra_negatives)
     load_s = time.perf_counter() - t
     check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed)
-    model = model.replace(metrics={**model.metrics, "load_seconds": round(load_s, 3), "drop_duplicates": bool(args.drop_duplicates)})
+    extra = {}
+    if args.extra_negatives:
+        from .data import _list_extra
+
+        extra_sources = {source for d in args.extra_negatives for source, _ in _list_extra(Path(d))}
+        extra = {"extra_negatives": {k: v for k, v in ds.counts().items() if k in extra_sources}}
+    model = model.replace(metrics={**model.metrics, "load_seconds": round(load_s, 3), "drop_duplicates": bool(args.drop_duplicates), **extra})
     report = _train_report(model)
     m = model.metrics
     print(f"images: {m['n_images']} ({', '.join(f'{k} {v}' for k, v in ds.counts().items())})")
@@ -515,12 +561,114 @@ def _cmd_evaluate(args) -> int:
     return 0
 
 
+def _frame_ranges(text: str) -> set[int]:
+    """``"0-89,160-250,300"`` -> the frame indexes (inclusive ranges)."""
+    out: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        lo, sep, hi = part.partition("-")
+        try:
+            a, b = int(lo), int(hi) if sep else int(lo)
+        except ValueError:
+            raise UsageError(f"--frames: expected ranges like 0-89,160-250, got {text!r}") from None
+        if a < 0 or b < a:
+            raise UsageError(f"--frames: {part!r} is not a range of frame indexes (first <= last, both >= 0)")
+        out.update(range(a, b + 1))
+    if not out:
+        raise UsageError(f"--frames: no frames in {text!r}")
+    return out
+
+
+def _regions(texts: list[str]):
+    import numpy as np
+
+    boxes = []
+    for text in texts:
+        try:
+            box = [int(v) for v in text.split(",")]
+        except ValueError:
+            box = []
+        if len(box) != 4 or box[2] <= box[0] or box[3] <= box[1] or min(box) < 0:
+            raise UsageError(f"--negative-region: expected X1,Y1,X2,Y2 whole pixels with X2 > X1 and Y2 > Y1, got {text!r}")
+        boxes.append(box)
+    return np.array(boxes, dtype=np.int64).reshape(-1, 4) if boxes else None
+
+
+def _cmd_mine_negatives(args) -> int:
+    from .evaluate import load_annotations
+    from .mining import MiningSource, mine_negatives, write_negatives
+
+    if not args.inputs and not args.labels:
+        raise UsageError("give the footage to mine: INPUT (with --negative-region) and/or --labels L.json")
+    frames = _frame_ranges(args.frames) if args.frames else None
+    regions = _regions(args.negative_region)
+    if args.max_gap < 0 or args.dedupe_frames < 0:
+        raise UsageError("--max-gap and --dedupe-frames must be >= 0")
+    sources, seen = [], set()
+    for path in args.labels:
+        labels = load_annotations(path)
+        if labels.source is None:
+            raise InputError(f"{labels.path}: the labels name no video or image folder")
+        if not labels.source.exists():
+            raise InputError(f"{labels.path}: names {labels.source}, which does not exist")
+        key = labels.source.resolve()
+        if key in seen:
+            raise UsageError(f"{labels.source} is named by two labels files; give one")
+        seen.add(key)
+        sources.append(MiningSource(labels.source, labels))
+    for inp in map(Path, args.inputs):
+        if not inp.exists():
+            raise InputError(f"{inp}: no such video or folder")
+        if inp.resolve() in seen:
+            continue  # labelled through --labels
+        if regions is None:
+            raise UsageError(f"{inp}: no labels for this input; give --negative-region (a place no vehicle can be) or its --labels file")
+        seen.add(inp.resolve())
+        sources.append(MiningSource(inp))
+    inputs = [s.path for s in sources] + [Path(p) for p in args.labels] + ([Path(args.model)] if args.model else [])
+    from .mining import _refuse_inputs
+
+    dest = Path(args.out) / "non-vehicles" / args.name
+    _refuse_inputs(dest, inputs)
+    if dest.exists() and not args.overwrite:
+        raise OutputError(f"{dest}: output exists; pass --overwrite to replace it")
+    detector = _load_detector(args.model)
+    t = time.perf_counter()
+
+    def progress(name, index):
+        if index % 50 == 0:
+            print(f"{name}: frame {index}", file=sys.stderr, flush=True)
+
+    mined = mine_negatives(
+        sources, detector, every=args.every, frames=frames, threshold=args.threshold, negative_regions=regions,
+        max_gap=args.max_gap, max_iou=args.max_iou, max_car_cover=args.max_car_cover, dedupe_iou=args.dedupe_iou,
+        dedupe_frames=args.dedupe_frames, progress=None if args.no_progress else progress,
+    )
+    for name, st in mined.stats.items():
+        print(
+            f"{name}: {st['frames']} frames searched ({st['skipped_frames']} skipped: no labels within --max-gap), "
+            f"{st['hot']} hot windows, {st['far']} away from vehicles, {st['duplicates']} near duplicates dropped, {st['kept']} kept"
+        )
+    if len(mined):
+        out = write_negatives(mined, args.out, args.name, overwrite=args.overwrite, inputs=inputs)
+        print(f"mined {len(mined)} negatives -> {out} ({time.perf_counter() - t:.1f} s)")
+    else:
+        out = None
+        print(f"mined 0 negatives; nothing written ({time.perf_counter() - t:.1f} s)")
+    if args.json:
+        print(json.dumps({"mined": len(mined), "folder": None if out is None else str(out), "inputs": mined.stats}))
+    return 0
+
+
 _COMMANDS = {
     "download": _cmd_download,
     "train": _cmd_train,
     "sweep": _cmd_sweep,
     "detect": _cmd_detect,
     "evaluate": _cmd_evaluate,
+    "mine-negatives": _cmd_mine_negatives,
 }
 
 

@@ -13,6 +13,13 @@ flat in KITTI. :func:`load_dataset` therefore groups each folder's images into b
 ``track_length`` consecutive file numbers (a stand-in for the track), and merges the groups of
 byte-identical files, so a grouped split (:class:`sklearn.model_selection.GroupShuffleSplit`)
 never has the same picture, and rarely the same car, on both sides.
+
+Extra negatives (``extra_negatives``, e.g. the hard negatives of
+:func:`vehicle_detection.mining.write_negatives`) are added after the archives' patches, each
+folder as its own source with its own groups: mined patches (named
+``<input>__f<frame>__...png``) are grouped by input and blocks of ``track_length`` frames, other
+PNGs by blocks of ``track_length`` file numbers, and no extra group is shared with the archives
+(except through byte-identical files, as above).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import os
 import re
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -152,10 +160,35 @@ def find_duplicates(digests: np.ndarray) -> list[np.ndarray]:
     return [np.sort(g) for g in splits if len(g) > 1]
 
 
-def _groups(sources: np.ndarray, names: np.ndarray, digests: np.ndarray, track_length: int) -> np.ndarray:
-    keys = [f"{s}#{_file_number(n) // track_length}" for s, n in zip(sources, names)]
-    _, groups = np.unique(keys, return_inverse=True)
-    groups = groups.astype(np.int64)
+def _group_keys(sources: np.ndarray, names: np.ndarray, track_length: int) -> list[str]:
+    """The archives' grouping: folder and block of ``track_length`` consecutive file numbers."""
+    return [f"{s}#{_file_number(n) // track_length}" for s, n in zip(sources, names)]
+
+
+def _extra_group_keys(sources: np.ndarray, names: np.ndarray, track_length: int) -> list[str]:
+    """Extra negatives: mined patches by input and block of frames, others by file-number block."""
+    from .mining import MINED_NAME
+
+    keys = []
+    for s, n in zip(sources, names):
+        m = MINED_NAME.match(n.rsplit("/", 1)[-1])
+        if m:
+            keys.append(f"extra:{s}#{m['stem']}#{int(m['frame']) // track_length}")
+        else:
+            keys.append(f"extra:{s}#{_file_number(n) // track_length}")
+    return keys
+
+
+def _groups(key_sets: list[list[str]], digests: np.ndarray) -> np.ndarray:
+    """Group ids: equal keys share one; each key set numbered after the previous (so the
+    archives' ids do not depend on what is added after them); byte-identical files merged."""
+    parts, offset = [], 0
+    for keys in key_sets:
+        _, ids = np.unique(np.array(keys, dtype=str), return_inverse=True)
+        ids = ids.astype(np.int64).reshape(-1) + offset
+        parts.append(ids)
+        offset = int(ids.max()) + 1 if len(ids) else offset
+    groups = np.concatenate(parts) if parts else np.zeros(0, np.int64)
     # Byte-identical files must share a group: union the groups of each duplicate set.
     parent = np.arange(groups.max() + 1 if len(groups) else 0)
 
@@ -173,12 +206,38 @@ def _groups(sources: np.ndarray, names: np.ndarray, digests: np.ndarray, track_l
     return np.array([find(g) for g in groups], dtype=np.int64)
 
 
+def _list_extra(folder: Path) -> list[tuple[str, Path]]:
+    """``(source, file)`` of every PNG of an extra negatives folder, sorted by source and number.
+
+    ``folder`` is either laid out like the data folder (PNGs under ``folder/non-vehicles/<source>/``)
+    or a folder of PNGs itself (source ``non-vehicles/<its name>``, subfolders included). Hidden
+    files and folders (such as an unfinished ``.NAME.XXXX.partial``) are skipped.
+    """
+    if not folder.is_dir():
+        raise InputError(f"{folder}: extra negatives folder not found")
+    root = folder / "non-vehicles" if (folder / "non-vehicles").is_dir() else folder
+    out = []
+    for p in root.rglob("*"):
+        rel = p.relative_to(root)
+        if p.suffix.lower() != ".png" or not p.is_file() or any(part.startswith(".") for part in rel.parts):
+            continue
+        if "vehicles" in rel.parts[:-1]:
+            raise InputError(f"{p}: an extra negatives folder may not hold a vehicles/ folder; only negatives are added")
+        sub = rel.parent.as_posix()
+        base = folder.name if root == folder else ""
+        source = "/".join(x for x in ("non-vehicles", base, "" if sub == "." else sub) if x)
+        out.append((source, p))
+    out.sort(key=lambda e: (e[0], _file_number(e[1].name), e[1].name))
+    return out
+
+
 def load_dataset(
     data_dir: str | os.PathLike | None = None,
     *,
     drop_duplicates: bool = False,
     track_length: int = 100,
     n_jobs: int = 4,
+    extra_negatives: Iterable[str | os.PathLike] = (),
 ) -> Dataset:
     """Load the training set from the archives or their extracted folders.
 
@@ -193,11 +252,16 @@ def load_dataset(
         Consecutive file numbers per group (see module docstring).
     n_jobs : int
         Decoding threads.
+    extra_negatives : iterable of path-like
+        Folders of further 64x64 non-vehicle PNGs, such as mined hard negatives: laid out like
+        the data folder (``DIR/non-vehicles/<source>/*.png``) or PNGs directly in ``DIR``. Each
+        source keeps its own groups (see the module docstring); a source may not share its name
+        with an archive folder or another extra folder.
 
     Returns
     -------
     Dataset
-        Sorted by class (vehicles first), then folder, then file number.
+        Sorted by class (vehicles first), then folder, then file number; extra negatives last.
 
     Raises
     ------
@@ -216,24 +280,42 @@ def load_dataset(
         if not names:
             raise InputError(f"{root}: no PNG images under {cls}/")
         names.sort(key=lambda n: (n.rsplit("/", 1)[0], _file_number(n), n))
-        entries.extend((cls, n, read) for n in names)
+        entries.extend((cls, n, read, root / n) for n in names)
+    n_archive = len(entries)
+    archive_sources = {n.rsplit("/", 1)[0] for _, n, _, _ in entries}
+    extra_sources: dict[str, Path] = {}
+    for folder in extra_negatives:
+        folder = Path(folder)
+        found = _list_extra(folder)
+        if not found:
+            raise InputError(f"{folder}: no PNG images in this extra negatives folder")
+        for source, path in found:
+            if source in archive_sources:
+                raise InputError(f"{folder}: extra negatives folder {source} has the name of a folder of the training archives; rename it")
+            if extra_sources.setdefault(source, folder) != folder:
+                raise InputError(f"{folder}: extra negatives folder {source} is also in {extra_sources[source]}; rename one")
+            entries.append(("non-vehicles", f"{source}/{path.name}", lambda name, path=path: path.read_bytes(), path))
 
     def load(entry):
-        cls, name, read = entry
+        cls, name, read, shown = entry
         data = read(name)
-        img = decode_image(data, f"{root / name}")
+        img = decode_image(data, str(shown))
         if img.shape != PATCH_SHAPE:
-            raise InputError(f"{root / name}: training patches must be 64x64, got {img.shape[1]}x{img.shape[0]}")
+            raise InputError(f"{shown}: training patches must be 64x64, got {img.shape[1]}x{img.shape[0]}")
         return img, hashlib.sha1(data).hexdigest()
 
     with ThreadPoolExecutor(max_workers=max(1, n_jobs)) as pool:
         loaded = list(pool.map(load, entries, chunksize=256))
     images = np.stack([img for img, _ in loaded]) if loaded else np.empty((0, *PATCH_SHAPE), np.uint8)
     digests = np.array([d for _, d in loaded])
-    names = np.array([n for _, n, _ in entries])
-    labels = np.array([CLASSES[c] for c, _, _ in entries], dtype=np.int8)
+    names = np.array([n for _, n, _, _ in entries])
+    labels = np.array([CLASSES[c] for c, _, _, _ in entries], dtype=np.int8)
     sources = np.array([n.rsplit("/", 1)[0] for n in names])
-    groups = _groups(sources, names, digests, track_length)
+    groups = _groups(
+        [_group_keys(sources[:n_archive], names[:n_archive], track_length),
+         _extra_group_keys(sources[n_archive:], names[n_archive:], track_length)],
+        digests,
+    )
     ds = Dataset(images, labels, sources, names, groups, digests)
     if drop_duplicates:
         keep = np.ones(len(ds), bool)

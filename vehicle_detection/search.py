@@ -46,6 +46,7 @@ __all__ = [
     "plan_windows",
     "search",
     "search_plain",
+    "window_patches",
 ]
 
 
@@ -343,6 +344,61 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan |
         scores = model.decision_function(extract_features(patches, cfg))
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape), scores, k))
     return Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
+
+
+def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassifier, plan: SearchPlan | None = None) -> np.ndarray:
+    """The 64x64 patches the classifier scored for windows that :func:`search` returned.
+
+    Each patch is cut from the scale's resized band exactly as the search saw it (INTER_AREA
+    resize, windows that overhang the frame edge filled with mirrored pixels, wide windows
+    squeezed), so ``model.decision_images(patches)`` gives the windows' margins again.
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+        The frame that was searched.
+    windows : Detections
+        Windows of ``search(frame, model, plan)`` (any subset), with ``data["scale_index"]``.
+    model : VehicleClassifier
+    plan : SearchPlan, optional
+        The plan of the search; the model's own by default.
+
+    Returns
+    -------
+    ndarray of uint8, shape (len(windows), window, window, 3)
+
+    Raises
+    ------
+    ValueError
+        If a window is not one the plan searches in this frame.
+    """
+    frame = as_rgb_uint8(frame, name="frame")
+    plan = model.detector_config.plan if plan is None else plan
+    cfg = model.config
+    side, ppc = cfg.window, cfg.pixels_per_cell
+    out = np.empty((len(windows), side, side, 3), np.uint8)
+    if not len(windows):
+        return out
+    if "scale_index" not in windows.data:
+        raise ValueError("windows need data['scale_index'] (as search returns them)")
+    work, f = _working_frame(frame, plan)
+    scale_index = np.asarray(windows.data["scale_index"])
+    for k in np.unique(scale_index):
+        if not 0 <= k < len(plan.scales):
+            raise ValueError(f"scale_index {k} is not a scale of the plan ({len(plan.scales)} scales)")
+        band = _band(work, plan.scales[k], cfg, plan.overhang)
+        if band is None:
+            raise ValueError(f"scale {k} of the plan searches no window in a {frame.shape[1]}x{frame.shape[0]} frame")
+        boxes = _band_boxes(band, cfg, f, frame.shape)
+        where = {tuple(b): i for i, b in enumerate(boxes.tolist())}
+        n_cols = len(band.cols)
+        for j in np.flatnonzero(scale_index == k):
+            i = where.get(tuple(windows.xyxy[j].tolist()))
+            if i is None:
+                raise ValueError(f"window {windows.xyxy[j].tolist()} is not a window of scale {k} of the plan")
+            r, c = band.rows[i // n_cols] * ppc, band.cols[i % n_cols] * ppc
+            out[j] = band.image[r : r + side, c : c + side]
+    return out
 
 
 # --- the fast path -----------------------------------------------------------------------------
