@@ -39,7 +39,8 @@ def main():
 
     from vehicle_detection.classifier import VehicleClassifier
     from vehicle_detection.detector import Detector
-    from vehicle_detection.video import VideoWriter, probe_video, process_video, read_frames
+    from vehicle_detection.pipeline import process_video
+    from vehicle_detection.video import VideoWriter, probe_video, read_frames
 
     video = Path(args.video) if args.video else _default_video()
     info = probe_video(video)

@@ -47,7 +47,8 @@ from vehicle_detection.features import FEATURE_FORMAT, FeatureConfig, extract_fe
 from vehicle_detection.heatmap import add_heat, heat_to_boxes, label_heat
 from vehicle_detection.images import as_rgb_uint8, decode_image, read_image, write_image
 from vehicle_detection.tracker import Tracker, TrackerConfig
-from vehicle_detection.video import probe_video, process_video, read_frames
+from vehicle_detection.pipeline import process_video
+from vehicle_detection.video import probe_video, read_frames
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"

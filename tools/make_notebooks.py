@@ -436,7 +436,8 @@ only the first frames of the project clip (the notebook test does).
     code("""
 from vehicle_detection.detector import Detector
 from vehicle_detection.evaluate import Annotations, evaluate_detections, load_annotations
-from vehicle_detection.video import probe_video, process_video, read_frames
+from vehicle_detection.pipeline import process_video
+from vehicle_detection.video import probe_video, read_frames
 
 MAX_FRAMES = int(os.environ.get("VD_MAX_FRAMES", 0)) or None  # None: whole videos
 TEST_VIDEO = P.repo / "test_video.mp4"

@@ -308,7 +308,7 @@ def _cmd_detect(args) -> int:
     from ._files import check_output_path
     from .boxes import BoxTable, write_boxes_csv
     from .images import IMAGE_EXTENSIONS, list_images, read_image, write_image
-    from .video import annotate_frame, process_video
+    from .pipeline import annotate_frame, process_video
 
     inp = Path(args.input)
     if not inp.exists():
@@ -384,7 +384,8 @@ def _cmd_evaluate(args) -> int:
     from itertools import islice
 
     from .evaluate import evaluate_detections, load_annotations
-    from .video import process_video, read_frames
+    from .pipeline import process_video
+    from .video import read_frames
 
     labels = load_annotations(args.labels)
     if not labels.frames:
