@@ -19,11 +19,11 @@ import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import imageio_ffmpeg
 import numpy as np
 import pytest
 from PIL import Image
 
+import media
 from vehicle_detection.boxes import BOXES_CSV_HEADER, read_boxes_table
 from vehicle_detection.cli import main
 from vehicle_detection.classifier import default_model_path
@@ -33,7 +33,6 @@ from vehicle_detection.video import probe_video, read_frames
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
 TEST_IMAGES = REPO / "test_images"
-FFMPEG = imageio_ffmpeg.get_ffmpeg_exe()
 SHARED = Path(os.environ.get("VEHICLE_DETECTION_DATA") or REPO.parent / "shared" / "data")
 ERROR_PREFIX = "vehicle-detection: error: "
 
@@ -52,12 +51,7 @@ def sha256(path: Path) -> str:
 
 
 def cut_video(src: Path, dest: Path, frames: int) -> Path:
-    subprocess.run(
-        [FFMPEG, "-hide_banner", "-nostdin", "-loglevel", "error", "-y", "-i", str(src), "-frames:v", str(frames),
-         "-c", "copy", str(dest)],
-        check=True, capture_output=True,
-    )  # fmt: skip
-    return dest
+    return media.copy_packets(src, dest, max_frames=frames)
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:

@@ -34,11 +34,13 @@ A file that cannot be opened, has no video stream, or yields no frame raises
 :class:`~vehicle_detection.errors.InputError` from :func:`probe_video` or :func:`read_frames`.
 A file that is damaged part-way yields every frame decoded before the damage, and then the
 iterator raises :class:`~vehicle_detection.errors.InputError` naming the file and the number of
-frames read. Damage is any of: the demuxer fails, a packet is cut short (the file ends inside
-it), the decoder rejects a packet, or the file ends before the last packet its index (MP4, MOV)
-lists. Errors that the decoder conceals without reporting them cost no frame and are not
-detected. A file with no index (MPEG-TS, MPEG-PS) that is cut at the end, between packets, cannot
-be told from a shorter file.
+frames read. Damage is any of: the demuxer fails or flags a packet as corrupt (cut short by
+the end of the file, or MPEG-TS packets missing), the decoder rejects a packet, or the file ends
+before the last packet its index (MP4, MOV) lists. The few frames the decoder still holds for
+reordering at that point are dropped, so that the frames yielded are exactly decoded frames
+``0 .. n-1``. Errors that the decoder conceals without reporting them are not detected. A file
+with no index (MPEG-TS, MPEG-PS) that is cut at the end, between packets, cannot be told from a
+shorter file.
 
 Written files
 -------------
@@ -87,8 +89,11 @@ X264_PRESETS = (
 
 #: Frames buffered between :meth:`VideoWriter.write` and the encoder thread.
 _WRITE_QUEUE_SIZE = 4
-#: Decoder threading: FFmpeg's frame and slice threads, as many as it sees fit.
-_DECODER_THREAD_TYPE = "AUTO"
+#: Decoder threading: slice threads only (one thread for single-slice streams). Frame threads
+#: report a decoding error only after they have output the damaged frames, which would break
+#: the rule that only frames from before the damage are yielded; the detector keeps both cores
+#: busy anyway.
+_DECODER_THREAD_TYPE = "SLICE"
 _DECODER_THREADS = 0
 #: Encoder threads (0: libx264 decides).
 _ENCODER_THREADS = 0
@@ -228,6 +233,8 @@ def _open_input(path: Path) -> av.container.InputContainer:
 def _video_stream(container: av.container.InputContainer, path: Path) -> av.video.stream.VideoStream:
     for stream in container.streams.video:
         if not stream.disposition & av.stream.Disposition.attached_pic:  # skip cover pictures
+            if stream.codec_context is None:
+                raise InputError(f"{path}: no decoder for the video stream (unknown codec, or a damaged header)")
             return stream
     raise InputError(f"{path}: contains no video stream")
 
@@ -261,7 +268,7 @@ def _decoded_frames(container, stream, path: Path) -> Iterator[av.VideoFrame]:
             if packet.size == 0:  # the demuxer's end-of-stream marker: flushed below
                 continue
             if packet.is_corrupt:
-                damage = "a packet is cut short"
+                damage = "the demuxer found a damaged or cut-short packet"
                 break
             try:
                 frames = stream.decode(packet)
@@ -277,19 +284,22 @@ def _decoded_frames(container, stream, path: Path) -> Iterator[av.VideoFrame]:
                     damage = "the file ends before the last packet its index lists"
     except av.error.FFmpegError as exc:
         damage = f"reading the file failed ({_reason(exc)})"
-    try:
-        yield from stream.decode(None)  # frames still inside the decoder
-    except av.error.FFmpegError as exc:
-        damage = damage or f"the {stream.codec_context.name} decoder failed at the end ({_reason(exc)})"
+    if damage is None:
+        try:
+            yield from stream.decode(None)  # frames still held for reordering
+        except av.error.FFmpegError as exc:
+            damage = f"the {stream.codec_context.name} decoder failed at the end ({_reason(exc)})"
     if damage is not None:
+        # The frames the decoder still holds are dropped: with a packet missing they could
+        # come out with a gap, and frame i would no longer be decoded frame i.
         raise _Damage(damage)
 
 
 def _damaged(path: Path, n_read: int, declared: int | None, damage: _Damage) -> InputError:
-    of = f" of the {declared} the file declares" if declared else ""
-    return InputError(
-        f"{path}: video is damaged or truncated: {_plural(n_read, 'frame')}{of} read before the damage: {damage}"
-    )
+    if n_read == 0:
+        return InputError(f"{path}: no video frame could be decoded: {damage}")
+    read = f"{n_read} of the {declared} frames the file declares" if declared else _plural(n_read, "frame")
+    return InputError(f"{path}: video is damaged or truncated: decoded {read}, then {damage}")
 
 
 def _probe(path: str | os.PathLike) -> tuple[Path, VideoInfo, _Layout]:
