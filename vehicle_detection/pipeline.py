@@ -42,13 +42,13 @@ def process_video(
 ):
     """Detect and track vehicles through a video; write the annotated video and the boxes.
 
-    Decoding (a thread and an ffmpeg process), detection (this thread, numba on both cores)
-    and encoding (a thread and an ffmpeg process) overlap.
+    Decoding (a thread), detection (this thread, numba on both cores) and encoding (a thread)
+    overlap.
 
     Parameters
     ----------
     path : path-like
-        Any video ffmpeg reads.
+        Any video FFmpeg (PyAV) reads.
     output : path-like, optional
         Annotated H.264 MP4 to write (atomically); None writes no video.
     detector : Detector, optional
@@ -120,7 +120,7 @@ def process_video(
                 write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
                 csv_written = True
     except BaseException:
-        # The video failed after the CSV was renamed into place (ffmpeg failing to finish the
+        # The video failed after the CSV was renamed into place (the encoder failing to finish the
         # file, Ctrl-C during its final flush): remove the CSV too, so that no output of a
         # failed run is left looking finished.
         if csv_written:
