@@ -89,6 +89,8 @@ X264_PRESETS = (
 
 #: Frames buffered between :meth:`VideoWriter.write` and the encoder thread.
 _WRITE_QUEUE_SIZE = 4
+#: Bytes the muxer collects before each write to the output file.
+_OUTPUT_BUFFER_BYTES = 1 << 20
 #: Decoder threading: slice threads only (one thread for single-slice streams). Frame threads
 #: report a decoding error only after they have output the damaged frames, which would break
 #: the rule that only frames from before the damage are yielded; the detector keeps both cores
@@ -422,8 +424,8 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.n
     """
     if isinstance(prefetch, bool) or not isinstance(prefetch, (int, np.integer)) or prefetch < 1:
         raise ValueError(f"prefetch must be a positive integer, got {prefetch!r}")
-    path, info, layout = _probe(path)
-    return _decode(path, info, layout, int(prefetch))
+    path, _, layout = _probe(path)
+    return _decode(path, layout, int(prefetch))
 
 
 def _to_rgb(frame: av.VideoFrame, layout: _Layout, scaler: VideoReformatter) -> np.ndarray:
@@ -450,7 +452,7 @@ class _DecodeState:
         self.error: BaseException | None = None
 
 
-def _decoder_thread(path: Path, info: VideoInfo, layout: _Layout, q: queue.Queue, stop: threading.Event, state: _DecodeState) -> None:
+def _decoder_thread(path: Path, layout: _Layout, q: queue.Queue, stop: threading.Event, state: _DecodeState) -> None:
     n_read = 0
     try:
         with _open_input(path) as container:
@@ -474,13 +476,13 @@ def _decoder_thread(path: Path, info: VideoInfo, layout: _Layout, q: queue.Queue
         _put(q, _END, stop)
 
 
-def _decode(path: Path, info: VideoInfo, layout: _Layout, prefetch: int) -> Generator[np.ndarray, None, None]:
+def _decode(path: Path, layout: _Layout, prefetch: int) -> Generator[np.ndarray, None, None]:
     q: queue.Queue = queue.Queue(maxsize=prefetch)
     stop = threading.Event()
     state = _DecodeState()
     thread = threading.Thread(
         target=_decoder_thread,
-        args=(path, info, layout, q, stop, state),
+        args=(path, layout, q, stop, state),
         name="vehicle_detection-video-decoder",
         daemon=True,
     )
@@ -508,6 +510,46 @@ def _decode(path: Path, info: VideoInfo, layout: _Layout, prefetch: int) -> Gene
 # --------------------------------------------------------------------------------------------
 # Writing
 # --------------------------------------------------------------------------------------------
+
+
+class _OutputFile:
+    """The temporary output file, handed to PyAV's muxer as a Python file object.
+
+    Writes are unbuffered and complete (the muxer ignores short writes). With ``+faststart``
+    the muxer reopens the file by :attr:`name` to move the index to the front; an absolute path
+    is never taken for a protocol. Closing this file before the muxer makes the muxer skip
+    writing the index, so abandoning a long video is instant.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.name = os.fspath(path.absolute())
+        self._raw = open(self.name, "wb", buffering=0)
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        total = len(view)
+        while view:
+            view = view[self._raw.write(view) :]
+        return total
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        return self._raw.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._raw.tell()
+
+    def seekable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    @property
+    def closed(self) -> bool:
+        return self._raw.closed
+
+    def close(self) -> None:
+        self._raw.close()
 
 
 class VideoWriter:
@@ -606,13 +648,13 @@ class VideoWriter:
         self.overwrite = bool(overwrite)
         self.path = check_output_path(path, overwrite=self.overwrite, inputs=self.inputs)
         self.fps = fps_value
-        exact = fps if isinstance(fps, (int, Fraction)) and not isinstance(fps, bool) else fps_value
-        self._rate = Fraction(exact).limit_denominator(10_000)
+        self._rate = Fraction(fps if isinstance(fps, Fraction) else fps_value).limit_denominator(10_000)
         self.size = (int(width), int(height))
         self.crf = int(crf)
         self.preset = preset
         self._frames_written = 0
         self._atomic = None
+        self._file: _OutputFile | None = None
         self._container = None
         self._stream = None
         self._queue: queue.Queue = queue.Queue(maxsize=_WRITE_QUEUE_SIZE)
@@ -637,8 +679,13 @@ class VideoWriter:
 
     def _open(self, tmp: Path) -> None:
         """Open the MP4 muxer on ``tmp`` and the libx264 encoder."""
+        self._file = _OutputFile(tmp)
         self._container = av.open(
-            _url(tmp), "w", format="mp4", container_options={"movflags": "+faststart", "protocol_whitelist": "file"}
+            self._file,
+            "w",
+            format="mp4",
+            container_options={"movflags": "+faststart", "protocol_whitelist": "file"},
+            buffer_size=_OUTPUT_BUFFER_BYTES,
         )
         stream = self._container.add_stream(
             "libx264", rate=self._rate, options={"crf": str(self.crf), "preset": self.preset}
@@ -714,6 +761,7 @@ class VideoWriter:
             try:
                 container.mux(stream.encode(None))  # the frames x264 still holds
                 container.close()  # writes the index, moved to the front (+faststart)
+                self._file.close()
             except BaseException as exc:
                 self._failure = exc
 
@@ -735,6 +783,8 @@ class VideoWriter:
             _drain(self._queue)
             self._queue.put(_END)
             self._thread.join()
+        if self._file is not None:
+            self._file.close()  # first, so that closing the muxer skips writing the index
         if self._container is not None:
             try:
                 self._container.close()  # no-op if the thread closed it already
