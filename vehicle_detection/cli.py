@@ -24,7 +24,7 @@ from .errors import InputError, OutputError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
-VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts", ".m2ts", ".mts")
 
 
 class _Parser(argparse.ArgumentParser):
