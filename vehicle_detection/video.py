@@ -99,8 +99,9 @@ _DECODER_THREAD_TYPE = "SLICE"
 _DECODER_THREADS = 0
 #: Encoder threads (0: libx264 decides).
 _ENCODER_THREADS = 0
-#: Colour conversion (libswscale) threads per frame.
-_SCALER_THREADS = 1
+#: Colour conversion (libswscale) threads per frame (0: libswscale decides; one per core was
+#: faster end to end than a single thread).
+_SCALER_THREADS = 0
 
 #: FFmpeg's codes for BT.709 (AVCOL_PRI_BT709 = AVCOL_TRC_BT709 = AVCOL_SPC_BT709) and for
 #: limited ("tv", "MPEG") range (AVCOL_RANGE_MPEG).
