@@ -190,6 +190,22 @@ def test_video_stream_without_frames(tmp_path):
         list(read_frames(path))
 
 
+def test_undecodable_metadata_text_is_ignored(tmp_path):
+    path = tmp_path / "meta.mp4"
+    with av.open(os.fspath(path), "w") as out:
+        out.metadata["title"] = "TITLE-XXXX"
+        stream = out.add_stream("libx264", rate=25)
+        stream.width, stream.height, stream.pix_fmt = 96, 64, "yuv420p"
+        for rgb in numbered_frames(3):
+            out.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+        out.mux(stream.encode(None))
+    data = path.read_bytes()
+    assert data.count(b"TITLE-XXXX") == 1
+    path.write_bytes(data.replace(b"TITLE-XXXX", b"\xff\xfe\xc3(-XXXXX"))  # not UTF-8
+    assert probe_video(path).n_frames == 3
+    assert [frame_number(f) for f in read_frames(path)] == [0, 1, 2]
+
+
 @pytest.mark.parametrize("name", ["-cam:1.mp4", "http:x.mp4", "a b#c?.mp4"])
 def test_odd_file_names_are_files(tmp_path, name):
     path = tmp_path / name  # "cam:" or "http:" would be a protocol, "#" or "?" a URL part

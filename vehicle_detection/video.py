@@ -226,7 +226,8 @@ class _Damage(Exception):
 
 def _open_input(path: Path) -> av.container.InputContainer:
     try:
-        return av.open(_url(path), "r", container_options={"protocol_whitelist": "file"})
+        # Metadata are never used; undecodable text in them must not make the file unreadable.
+        return av.open(_url(path), "r", container_options={"protocol_whitelist": "file"}, metadata_errors="replace")
     except av.error.PermissionError as exc:
         raise InputError(f"{path}: cannot read file: {_reason(exc)}") from None
     except av.error.FFmpegError as exc:
@@ -709,7 +710,7 @@ class VideoWriter:
         try:
             try:
                 self._open(tmp)
-            except av.error.FFmpegError as exc:
+            except (av.error.FFmpegError, OSError) as exc:
                 raise OutputError(f"{self.path}: cannot start the H.264 encoder ({self._settings()}): {_reason(exc)}") from None
             self._thread = threading.Thread(
                 target=self._encoder_thread, name="vehicle_detection-video-encoder", daemon=True
