@@ -14,7 +14,9 @@ Design
   through a bounded queue; encoding (convert to YUV, encode, mux) runs in another thread fed the
   same way. FFmpeg releases the GIL while it works, so both overlap with the detector, and
   memory stays bounded by the queues. Closing a reader early or leaving a writer's ``with``
-  block by an exception (Ctrl-C included) stops its thread at the next frame.
+  block by an exception (Ctrl-C included) stops its thread at the next frame. The decoder uses
+  slice threads only: frame threads report a damaged packet only after they have output its
+  frames (see "Damaged files"), and the detector keeps both cores busy anyway.
 * Input paths are opened as ``file:`` URLs with only the file protocol allowed, so a name such as
   ``http:x.mp4`` is a file name, and a playlist cannot make FFmpeg open network URLs.
 
@@ -51,7 +53,7 @@ dimensions, so a frame with an odd width or height is padded with one black colu
 or one black row at the bottom. Reading the file back gives the padded, even size. Because
 chroma is shared by 2x2 pixel blocks, the padding can take on a faint tint of the neighbouring
 colour. The file appears under its final name only when it is complete (see
-:mod:`vehicle_detection._files`).
+:mod:`vehicle_detection._files`); an abandoned file is deleted without first being finished.
 """
 
 from __future__ import annotations
