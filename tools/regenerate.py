@@ -11,7 +11,9 @@ Each notebook runs in a fresh ``python3`` kernel with ``notebooks/`` as its work
   exists, else the repository's ``data/``;
 * ``VD_OUTPUT_DIR``: ``--output-dir`` if given (default: the notebooks' own default,
   ``output_images/``);
-* ``VD_MAX_FRAMES``: ``--max-frames`` if given.
+* ``VD_MAX_FRAMES``: ``--max-frames`` if given;
+* ``PYTHONPATH``: this checkout first, so that the kernels import its ``vehicle_detection``
+  whatever copy is installed (an editable install may point at another checkout).
 
 The notebooks on disk are not modified (they are committed without outputs; see
 ``tools/make_notebooks.py``); ``--executed DIR`` saves the executed copies there. Prints each
@@ -53,6 +55,7 @@ def run_notebook(path: Path, *, timeout: int = 1200, env: dict[str, str] | None 
 
     saved = dict(os.environ)
     os.environ.update(env or {})
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p)
     try:
         nb = nbformat.read(path, as_version=4)
         client = NotebookClient(
