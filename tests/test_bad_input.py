@@ -25,11 +25,11 @@ import threading
 import time
 import zipfile
 import zlib
+from fractions import Fraction
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import cv2
-import imageio_ffmpeg
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -37,6 +37,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from PIL import Image
 
+import media
 from vehicle_detection import __version__
 from vehicle_detection._files import PARTIAL_SUFFIX, atomic_output, check_output_path
 from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv
@@ -48,12 +49,12 @@ from vehicle_detection.heatmap import add_heat, heat_to_boxes, label_heat
 from vehicle_detection.images import as_rgb_uint8, decode_image, read_image, write_image
 from vehicle_detection.config import DetectorConfig
 from vehicle_detection.detections import Detections
+from vehicle_detection.pipeline import process_video
 from vehicle_detection.tracker import Tracker, TrackerConfig
-from vehicle_detection.video import probe_video, process_video, read_frames
+from vehicle_detection.video import probe_video, read_frames
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
-FFMPEG = imageio_ffmpeg.get_ffmpeg_exe()
 HYP = settings(deadline=None, max_examples=int(os.environ.get("HYP_EXAMPLES", 40)), database=None, suppress_health_check=[HealthCheck.too_slow])
 
 needs_test_video = pytest.mark.skipif(not TEST_VIDEO.is_file(), reason="test_video.mp4 not in the checkout")
@@ -92,10 +93,6 @@ def _no_network(monkeypatch):
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def ffmpeg(*args: str) -> None:
-    subprocess.run([FFMPEG, "-hide_banner", "-nostdin", "-loglevel", "error", "-y", *args], check=True, capture_output=True)
 
 
 def png_bytes(arr: np.ndarray, color_type: int, bit_depth: int = 16) -> bytes:
@@ -278,7 +275,7 @@ def test_corrupt_video_refused(tmp_path):
 
 def test_zero_frame_video_refused(tmp_path):
     path = tmp_path / "zero.mp4"
-    ffmpeg("-f", "lavfi", "-i", "testsrc2=size=64x48:rate=25", "-frames:v", "0", "-c:v", "libx264", path.as_posix())
+    media.encode(path, [])  # the MP4 muxer leaves a track without samples out
     with pytest.raises(InputError) as info:
         read_frames(path)
     assert_error(info, path, "contains no video stream")
@@ -338,11 +335,9 @@ def check_frame_indices(video: Path, csv: Path) -> list[np.ndarray]:
 def test_variable_frame_rate_csv_frames_are_decoded_frames(tmp_path):
     path = tmp_path / "vfr.mp4"
     # 25 frames with 5 dropped (a gap) and a timestamp jump after frame 12.
-    ffmpeg(
-        "-f", "lavfi", "-i", "testsrc2=size=96x64:rate=25:duration=1",
-        "-vf", r"select='not(between(n\,5\,9))',setpts='N/25/TB+if(gt(N\,12)\,0.37/TB\,0)'",
-        "-fps_mode", "vfr", "-c:v", "libx264", "-preset", "ultrafast", path.as_posix(),
-    )  # fmt: skip
+    kept = [n for n in range(25) if not 5 <= n <= 9]
+    pts = [4 * n + (37 if i > 12 else 0) for i, n in enumerate(kept)]  # in 1/100 s
+    media.encode(path, media.moving_square_frames(25, 96, 64)[:20], pts=pts, time_base=Fraction(1, 100))
     out, csv = tmp_path / "out.mp4", tmp_path / "out.csv"
     table = process_video(path, out, detector=fast_probe(), boxes_csv=csv, progress=False)
     decoded = check_frame_indices(path, csv)
@@ -353,8 +348,7 @@ def test_variable_frame_rate_csv_frames_are_decoded_frames(tmp_path):
 
 def test_odd_size_h264_video(tmp_path):
     path = tmp_path / "odd.mp4"  # 321x241: H.264 in 4:4:4 allows odd sizes, 4:2:0 output does not
-    ffmpeg("-f", "lavfi", "-i", "testsrc2=size=320x240:rate=25", "-vf", "scale=321:241", "-frames:v", "4",
-           "-c:v", "libx264", "-pix_fmt", "yuv444p", path.as_posix())  # fmt: skip
+    media.encode(path, media.moving_square_frames(4, 321, 241), pix_fmt="yuv444p")
     assert probe_video(path).size == (321, 241)
     out, csv = tmp_path / "out.mp4", tmp_path / "out.csv"
     process_video(path, out, detector=fast_probe(), boxes_csv=csv, progress=False)
@@ -409,10 +403,10 @@ def test_video_failing_at_the_end_takes_the_csv_with_it(tmp_path, monkeypatch):
     from vehicle_detection import video as video_module
 
     src = tmp_path / "in.mp4"
-    ffmpeg("-f", "lavfi", "-i", "testsrc2=size=96x64:rate=25", "-frames:v", "3", "-c:v", "libx264", src.as_posix())
+    media.encode(src, media.moving_square_frames(3, 96, 64))
 
     def broken_finish(self):
-        raise OutputError(f"{self.path}: ffmpeg failed to encode the video (exit status 1): No space left on device")
+        raise OutputError(f"{self.path}: encoding the video failed: No space left on device")
 
     monkeypatch.setattr(video_module.VideoWriter, "_finish", broken_finish)
     out, csv = tmp_path / "out.mp4", tmp_path / "out.csv"
@@ -433,7 +427,7 @@ def long_video(tmp_path_factory):
         pytest.skip("test_video.mp4 not in the checkout")
     path = tmp_path_factory.mktemp("long") / "long.mp4"
     # 6 x 38 frames: far more than the run lasts before it is stopped.
-    ffmpeg("-stream_loop", "5", "-i", TEST_VIDEO.as_posix(), "-c", "copy", path.as_posix())
+    media.copy_packets(TEST_VIDEO, path, loops=6)
     return path
 
 
@@ -490,7 +484,7 @@ def test_detect_stopped_midway_leaves_no_finished_looking_output(tmp_path, long_
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    # ffmpeg runs in its own session; wait until the orphaned ones (after SIGKILL) have ended.
+    # Nothing the run started may outlive it.
     deadline = time.monotonic() + 20
     while _processes_mentioning(str(tmp_path)) and time.monotonic() < deadline:
         time.sleep(0.05)

@@ -23,11 +23,11 @@ import time
 import zipfile
 from pathlib import Path
 
-import imageio_ffmpeg
 import numpy as np
 import pytest
 from PIL import Image, ImageFile, ImageOps
 
+import media
 from vehicle_detection._files import PARTIAL_SUFFIX, atomic_output, check_output_path
 from vehicle_detection.cli import main
 from vehicle_detection.errors import InputError, OutputError
@@ -37,7 +37,6 @@ from vehicle_detection.images import decode_image, read_image
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
 TEST_IMAGES = REPO / "test_images"
-FFMPEG = imageio_ffmpeg.get_ffmpeg_exe()
 ERROR = "vehicle-detection: error: "
 
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals, FIFOs and pipes")
@@ -279,18 +278,18 @@ def test_failed_overwrite_of_a_video_keeps_both_previous_outputs(tmp_path, capsy
     from vehicle_detection import video as video_module
 
     clip = tmp_path / "clip.mp4"
-    subprocess.run([FFMPEG, "-nostdin", "-loglevel", "error", "-i", TEST_VIDEO, "-frames:v", "3", "-c", "copy", clip], check=True)
+    media.copy_packets(TEST_VIDEO, clip, max_frames=3)
     assert run_main(capsys, "detect", clip, "--no-progress")[0] == 0
     before = snapshot(tmp_path)
     assert sorted(before) == ["clip.mp4", "clip_boxes.csv", "clip_detected.mp4"]
 
     def broken_finish(self):
-        raise OutputError(f"{self.path}: ffmpeg failed to encode the video (exit status 1): No space left on device")
+        raise OutputError(f"{self.path}: the encoder failed to finish the video: No space left on device")
 
     monkeypatch.setattr(video_module.VideoWriter, "_finish", broken_finish)
     code, _, err = run_main(capsys, "detect", clip, "--no-progress", "--overwrite")
     assert code == 5
-    assert err == [f"{ERROR}{tmp_path / 'clip_detected.mp4'}: ffmpeg failed to encode the video (exit status 1): No space left on device"]
+    assert err == [f"{ERROR}{tmp_path / 'clip_detected.mp4'}: the encoder failed to finish the video: No space left on device"]
     assert snapshot(tmp_path) == before
 
 
@@ -342,7 +341,7 @@ def long_clip(tmp_path_factory):
     if not TEST_VIDEO.is_file():
         pytest.skip("test_video.mp4 not in the checkout")
     path = tmp_path_factory.mktemp("long") / "long.mp4"
-    subprocess.run([FFMPEG, "-nostdin", "-loglevel", "error", "-stream_loop", "5", "-i", TEST_VIDEO, "-c", "copy", path], check=True)
+    media.copy_packets(TEST_VIDEO, path, loops=6)
     return path
 
 
@@ -711,3 +710,19 @@ def test_exif_orientation_counts_for_the_shape_check(tmp_path):
     with pytest.raises(InputError) as info:
         read_image(path)
     assert str(info.value) == f"{path}: image of 60x400 pixels is too tall (more than 1:4); crop it first"
+
+
+def test_wide_video_refused_before_decoding(tmp_path, capsys):
+    """b. for videos: a 4096x16 clip is refused from its size, with exit 3 and no output."""
+    clip = media.encode(tmp_path / "strip.mp4", [np.zeros((16, 4096, 3), np.uint8)] * 3)
+    code, _, err = run_main(capsys, "detect", clip, "--no-progress")
+    assert code == 3
+    assert err == [f"{ERROR}{clip}: image of 4096x16 pixels is too wide (more than 8:1); crop it first"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["strip.mp4"]
+
+
+def test_search_refuses_absurd_arrays():
+    from vehicle_detection.detector import Detector
+
+    with pytest.raises(InputError, match="too wide"):
+        Detector().detect_image(np.zeros((10, 20000, 3), np.uint8))

@@ -33,7 +33,7 @@ _API = {
     "search": "search",
     "Tracker": "tracker",
     "TrackerConfig": "tracker",
-    "process_video": "video",
+    "process_video": "pipeline",
     # models and training
     "VehicleClassifier": "classifier",
     "load_model": "classifier",
@@ -101,4 +101,5 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .tracker import Tracker, TrackerConfig
     from .tables import read_boxes_csv, write_boxes_csv
     from .tracking_metrics import tracking_scores
-    from .video import VideoWriter, probe_video, process_video, read_frames
+    from .pipeline import process_video
+    from .video import VideoWriter, probe_video, read_frames

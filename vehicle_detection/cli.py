@@ -29,7 +29,7 @@ from .errors import InputError, OutputError, UsageError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
-VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts", ".m2ts", ".mts")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -407,7 +407,7 @@ def _cmd_detect(args) -> int:
     from .drawing import draw_detections
     from .images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
     from .tables import write_boxes_csv
-    from .video import process_video
+    from .pipeline import process_video
 
     inp = Path(args.input)
     if not inp.exists():
@@ -478,7 +478,8 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool):
 
     from .detections import Detections
     from .images import list_images, read_image
-    from .video import probe_video, process_video, read_frames
+    from .pipeline import process_video
+    from .video import probe_video, read_frames
 
     last = max(labels.frames) + 1
     if source.is_dir():

@@ -33,7 +33,7 @@ import numpy as np
 from ._jit import njit
 from .detections import Detections
 from .features import FeatureConfig, _block_maps, _gather_block, convert_color, extract_features, hog_input, region_hog
-from .images import as_rgb_uint8
+from .images import as_rgb_uint8, check_frame_shape
 
 if TYPE_CHECKING:
     from .classifier import VehicleClassifier
@@ -255,6 +255,7 @@ def _windows(boxes: np.ndarray, scores: np.ndarray, scale_index: int) -> Detecti
 
 def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, float]:
     h, w = frame.shape[:2]
+    check_frame_shape(h, w, "frame", reference_height=plan.reference_height)
     if h == plan.reference_height:
         return frame, 1.0
     f = plan.reference_height / h

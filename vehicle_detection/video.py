@@ -1,86 +1,80 @@
-"""Video files in and out: decoding and encoding through ffmpeg pipes.
+"""Video files in and out: decoding and H.264 encoding with PyAV, in background threads.
 
-Frames cross the process boundary as raw ``rgb24`` bytes, so inside the library a video frame is,
-like every image, RGB ``uint8`` with shape ``(H, W, 3)``. The ffmpeg binary is the one bundled with
-imageio-ffmpeg (:func:`imageio_ffmpeg.get_ffmpeg_exe`); ffprobe is not needed.
+Inside the library a video frame is, like every image, RGB ``uint8`` with shape ``(H, W, 3)``.
+This module only reads and writes frames; :mod:`vehicle_detection.pipeline` runs the detector
+over them.
 
-Design notes
-------------
-* **Own** :class:`subprocess.Popen` **rather than** ``imageio_ffmpeg.read_frames`` /
-  ``write_frames``. It is faster because each frame goes straight from the pipe into a new numpy
-  array (``readinto``). imageio yields immutable ``bytes``, so a writeable array costs one more
-  720p copy (2.7 MB) per frame. It is more robust because imageio's reader stops quietly at the
-  end of the output and never checks ffmpeg's exit status or error messages, so a truncated
-  file looks like a short, valid one, and its writer pushes frames through
-  ``generator.send()`` in the caller's thread. Here stderr is limited to error messages and
-  quoted in exceptions, the exit status is checked, an early close kills and reaps ffmpeg at
-  once, and paths are passed as ``file:`` URLs, so a name such as ``cam:1.mp4`` or ``-x.mp4`` is
-  never taken for a protocol or an option.
-* **Not moviepy**: its reader adds per-frame copies and conversions, plus clip and audio machinery.
-* Decoding and encoding each run in a background thread linked to the caller by a bounded
-  queue, so ffmpeg works on the next frames (ffmpeg and numpy both release the GIL while doing
-  so) while the caller runs the detector on the current one. Memory stays bounded by the queue.
-* ffmpeg is started in its own process group, so Ctrl-C reaches only Python, which then kills
-  ffmpeg itself. ffmpeg never sees the signal and never acts on it by itself.
+Design
+------
+* **PyAV** (FFmpeg's libraries, linked into this process) does the demuxing, decoding, colour
+  conversion and encoding. Frames arrive as numpy arrays without crossing a pipe, failures are
+  exceptions rather than log text to parse, the frame count comes from the container's own
+  index, and timestamps are exact rationals.
+* Decoding (demux, decode, convert to RGB) runs in a background thread that feeds the caller
+  through a bounded queue; encoding (convert to YUV, encode, mux) runs in another thread fed the
+  same way. FFmpeg releases the GIL while it works, so both overlap with the detector, and
+  memory stays bounded by the queues. Closing a reader early or leaving a writer's ``with``
+  block by an exception (Ctrl-C included) stops its thread at the next frame. The decoder uses
+  slice threads only: frame threads report a damaged packet only after they have output its
+  frames (see "Damaged files"), and the detector keeps both cores busy anyway.
+* Input paths are opened as ``file:`` URLs with only the file protocol allowed, so a name such as
+  ``http:x.mp4`` is a file name, and a playlist cannot make FFmpeg open network URLs.
 
 Frame order and count
 ---------------------
-:func:`read_frames` yields every decoded frame of the first video stream exactly once, in
-decoding output (presentation) order. It uses ``-fps_mode passthrough``, so for variable-frame-rate
-files, frame ``i`` of the iterator is decoded frame ``i``: no frame is duplicated or dropped to
-fit a constant rate. Frames are rotated upright as ffmpeg does by default when the file carries
-a display-rotation matrix. :attr:`VideoInfo.width` and :attr:`VideoInfo.height` give that
-upright size.
+:func:`read_frames` yields every decoded frame of the first video stream exactly once, in the
+decoder's output (presentation) order: frame ``i`` of the iterator is decoded frame ``i``.
+Nothing is duplicated or dropped to fit a constant rate, so a variable-frame-rate file keeps one
+frame per decoded frame. Frames are turned upright when the file carries a display matrix
+(rotation by a multiple of 90 degrees, possibly mirrored), as FFmpeg's players do; other angles
+are ignored. :attr:`VideoInfo.width` and :attr:`VideoInfo.height` give the upright size. If the
+coded size changes mid-stream, later frames are scaled to the size of the first.
 
 Damaged files
 -------------
 A file that cannot be opened, has no video stream, or yields no frame raises
 :class:`~vehicle_detection.errors.InputError` from :func:`probe_video` or :func:`read_frames`.
-A file that is truncated or corrupt part-way through yields every frame that decodes before the
-damage, and then the iterator raises :class:`~vehicle_detection.errors.InputError`, naming the
-file, when
-
-* ffmpeg exits with a non-zero status, or
-* ffmpeg logged at least one error **and** fewer frames came out than
-  :attr:`VideoInfo.n_frames` announced.
-
-Decoding errors that do not cost any frame, such as a damaged first GOP that the decoder
-conceals, are tolerated silently. When ``n_frames`` is unknown, the second rule cannot apply.
+A file that is damaged part-way yields every frame decoded before the damage, and then the
+iterator raises :class:`~vehicle_detection.errors.InputError` naming the file and the number of
+frames read. Damage is any of: the demuxer fails or flags a packet as corrupt (cut short by
+the end of the file, or MPEG-TS packets missing), the decoder rejects a packet, or the file ends
+before the last packet its index (MP4, MOV) lists. The few frames the decoder still holds for
+reordering at that point are dropped, so that the frames yielded are exactly decoded frames
+``0 .. n-1``. Errors that the decoder conceals without reporting them are not detected. A file
+with no index (MPEG-TS, MPEG-PS) that is cut at the end, between packets, cannot be told from a
+shorter file.
 
 Written files
 -------------
-:class:`VideoWriter` writes H.264 (libx264), ``yuv420p``, BT.709 limited range (tagged), in MP4
-with ``+faststart`` so that browsers can play it while it downloads. 4:2:0 video needs even
+:class:`VideoWriter` writes H.264 (libx264), ``yuv420p``, converted with the BT.709 matrix to
+limited range and tagged so (primaries, transfer, matrix: BT.709; range: limited), in MP4 with
+``+faststart`` so that browsers can play it while it downloads. 4:2:0 video needs even
 dimensions, so a frame with an odd width or height is padded with one black column on the right
 or one black row at the bottom. Reading the file back gives the padded, even size. Because
 chroma is shared by 2x2 pixel blocks, the padding can take on a faint tint of the neighbouring
-colour. The file
-appears under its final name only when it is complete (see :mod:`vehicle_detection._files`).
+colour. The file appears under its final name only when it is complete (see
+:mod:`vehicle_detection._files`); an abandoned file is deleted without first being finished.
 """
 
 from __future__ import annotations
 
-import io
-import itertools
 import math
 import os
 import queue
-import re
-import struct
-import subprocess
-import sys
 import threading
-from collections.abc import Generator, Iterable
+from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
+import av
 import numpy as np
+from av.video.reformatter import VideoReformatter
 
 from ._files import atomic_output, check_output_path
 from .errors import InputError, OutputError
 
-__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS", "process_video"]
+__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS"]
 
 X264_PRESETS = (
     "ultrafast",
@@ -97,111 +91,60 @@ X264_PRESETS = (
 
 #: Frames buffered between :meth:`VideoWriter.write` and the encoder thread.
 _WRITE_QUEUE_SIZE = 4
-#: Seconds to wait for ffmpeg to finish reading the header of an input file.
-_PROBE_TIMEOUT = 60.0
-#: How much of ffmpeg's stderr goes into an error message.
-_STDERR_TAIL_CHARS = 600
-#: Memory addresses in ffmpeg's log prefixes ("[h264 @ 0x55d0...]"): noise in an error message.
-_ADDRESS_RE = re.compile(r" @ 0x[0-9a-fA-F]+")
-#: A ``moov`` box larger than this is not read to count frames (n_frames is estimated instead).
-_MAX_MOOV_BYTES = 256 * 1024 * 1024
+#: Bytes the muxer collects before each write to the output file.
+_OUTPUT_BUFFER_BYTES = 1 << 20
+#: Decoder threading: slice threads only (one thread for single-slice streams). Frame threads
+#: report a decoding error only after they have output the damaged frames, which would break
+#: the rule that only frames from before the damage are yielded; the detector keeps both cores
+#: busy anyway.
+_DECODER_THREAD_TYPE = "SLICE"
+_DECODER_THREADS = 0
+#: Encoder threads (0: libx264 decides).
+_ENCODER_THREADS = 0
+#: Colour conversion (libswscale) threads per frame (0: libswscale decides; one per core was
+#: faster end to end than a single thread).
+_SCALER_THREADS = 0
+
+#: FFmpeg's codes for BT.709 (AVCOL_PRI_BT709 = AVCOL_TRC_BT709 = AVCOL_SPC_BT709) and for
+#: limited ("tv", "MPEG") range (AVCOL_RANGE_MPEG).
+_BT709 = 1
+_LIMITED_RANGE = 1
 
 _END = object()  # end-of-stream marker in the frame queues
 
+#: Display matrix (signs of its 2x2 part, row-major) -> (np.rot90 quarter turns, then mirror
+#: left-right), matching what FFmpeg's autorotation shows.
+_ORIENTATIONS = {
+    (1, 0, 0, 1): (0, False),
+    (0, -1, 1, 0): (1, False),
+    (-1, 0, 0, -1): (2, False),
+    (0, 1, -1, 0): (3, False),
+    (-1, 0, 0, 1): (0, True),
+    (1, 0, 0, -1): (2, True),
+    (0, -1, -1, 0): (1, True),
+    (0, 1, 1, 0): (3, True),
+}
+
 
 # --------------------------------------------------------------------------------------------
-# ffmpeg process helpers
+# Helpers
 # --------------------------------------------------------------------------------------------
 
 
-def _ffmpeg_exe() -> str:
-    import imageio_ffmpeg  # imported lazily: only the video functions need it
-
-    return imageio_ffmpeg.get_ffmpeg_exe()
-
-
-def _file_url(path: Path) -> str:
-    # "file:" stops ffmpeg from reading "a:b.mp4" as protocol "a" or "-x.mp4" as an option.
-    return "file:" + os.fspath(path.absolute())
-
-
-def _popen(cmd: list[str], *, stdin, stdout) -> subprocess.Popen:
-    kwargs: dict = {}
-    if sys.platform == "win32":
-        kwargs["creationflags"] = subprocess.CREATE_NEW_PROCESS_GROUP
+def _reason(exc: BaseException) -> str:
+    """One line saying what went wrong, without the file name (the caller adds it)."""
+    if isinstance(exc, av.error.FFmpegError):
+        text = exc.strerror or type(exc).__name__
+    elif isinstance(exc, OSError):
+        text = exc.strerror or str(exc)
     else:
-        kwargs["start_new_session"] = True
-    return subprocess.Popen(cmd, stdin=stdin, stdout=stdout, stderr=subprocess.PIPE, bufsize=0, **kwargs)
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
 
 
-def _reap(proc: subprocess.Popen, *, kill: bool, timeout: float | None = None) -> int:
-    """Make sure ``proc`` has exited and been waited for (no zombie); return its exit status.
-
-    With ``kill`` it is killed first. Otherwise it gets ``timeout`` seconds (None: no limit) to
-    exit by itself before it is killed.
-    """
-    if kill and proc.poll() is None:
-        try:
-            proc.kill()
-        except OSError:  # already gone
-            pass
-    try:
-        return proc.wait(timeout=None if kill else timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait()
-
-
-def _shorten(text: str, limit: int = _STDERR_TAIL_CHARS) -> str:
-    text = " | ".join(line.strip() for line in text.splitlines() if line.strip())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-class _StderrCollector(threading.Thread):
-    """Drain a process's stderr (so it never blocks on a full pipe), keeping its first and last lines.
-
-    ffmpeg states the cause of a failure first and then one line per task that gave up, so an
-    error report needs both ends.
-    """
-
-    def __init__(self, stream) -> None:
-        super().__init__(name="vehicle_detection-ffmpeg-stderr", daemon=True)
-        self._stream = stream
-        self._first: list[str] = []
-        self._last = ""
-        self.n_lines = 0
-
-    def run(self) -> None:
-        try:
-            # The pipe is unbuffered (bufsize=0); buffer it here so readline is not byte by byte.
-            for raw in io.BufferedReader(self._stream):
-                line = _ADDRESS_RE.sub("", raw.decode("utf-8", "replace")).strip()
-                if line:
-                    self.n_lines += 1
-                    if len(self._first) < 2:
-                        self._first.append(line)
-                    else:
-                        self._last = line
-        except (OSError, ValueError):  # stream closed under us
-            pass
-        finally:
-            try:
-                self._stream.close()
-            except OSError:
-                pass
-
-    def summary(self) -> str:
-        """The first two lines of ffmpeg's complaint and the last one, shortened."""
-        if not self.n_lines:
-            return "(ffmpeg printed no error message)"
-        lines = list(self._first)
-        if self._last:
-            skipped = self.n_lines - len(lines) - 1
-            lines += ([f"[{skipped} more]"] if skipped > 0 else []) + [self._last]
-        return _shorten("\n".join(lines))
-
-    def first(self) -> str:
-        return _shorten(self._first[0], 300) if self._first else ""
+def _url(path: Path) -> str:
+    # "file:" stops FFmpeg from reading "a:b.mp4" as protocol "a".
+    return "file:" + os.fspath(path.absolute())
 
 
 def _put(q: queue.Queue, item, stop: threading.Event) -> bool:
@@ -223,6 +166,10 @@ def _drain(q: queue.Queue) -> None:
         pass
 
 
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
 # --------------------------------------------------------------------------------------------
 # Probing
 # --------------------------------------------------------------------------------------------
@@ -235,18 +182,19 @@ class VideoInfo:
     Attributes
     ----------
     width, height : int
-        Size in pixels of the frames :func:`read_frames` yields: the coded size, swapped when
-        the file asks for a 90 or 270 degree display rotation.
+        Size in pixels of the frames :func:`read_frames` yields: the size of the first decoded
+        frame, swapped when the file asks for a 90 or 270 degree display rotation.
     fps : float
-        Average frame rate in frames per second (ffmpeg's ``avg_frame_rate``, or the stream's
-        base rate ``tbr`` if no average is known). NTSC rates such as 29.97 are returned exactly
-        as ``30000 / 1001``. It is 0.0 if ffmpeg reports neither rate.
+        Average frame rate in frames per second: the container's average rate, else the rate
+        the codec declares, else the stream's base rate; 0.0 if none is known. It is the float
+        of an exact rational, so ``Fraction(fps).limit_denominator(10_000)`` gives back rates
+        such as ``30000 / 1001``.
     n_frames : int or None
-        Number of frames the container declares. For MP4/MOV it comes from the video track's
-        sample table and is exact for an intact file. For other containers it is estimated as
-        ``round(duration * fps)``. It is None if unknown. Use it for progress bars and
+        Number of frames the container declares (MP4/MOV: the video track's sample table; some
+        other containers have a count in their header), else estimated as
+        ``round(duration * fps)``, or None if unknown. Use it for progress bars and
         plausibility checks, not as a promise: :func:`read_frames` yields the frames that
-        actually decode.
+        actually decode (an MP4 edit list, for one, can hide some).
     duration : float or None
         Duration in seconds that the container declares (all streams), or None if unknown.
     """
@@ -263,42 +211,105 @@ class VideoInfo:
         return (self.width, self.height)
 
 
-_INPUT_RE = re.compile(r"^Input #0, (?P<format>.+?), from ", re.M)
-_STREAM_RE = re.compile(r"^\s*Stream #0:(?P<index>\d+)[^:]*: (?P<kind>\w+): (?P<rest>.*)$")
-_SIZE_RE = re.compile(r"(?<![\w/])(?P<w>\d{1,6})x(?P<h>\d{1,6})(?!\w)")
-_FPS_RE = re.compile(r"(?<![\w.])(?P<v>\d+(?:\.\d+)?)(?P<k>k?) fps\b")
-_TBR_RE = re.compile(r"(?<![\w.])(?P<v>\d+(?:\.\d+)?)(?P<k>k?) tbr\b")
-_DURATION_RE = re.compile(r"^\s*Duration: (?P<h>\d+):(?P<m>\d\d):(?P<s>\d\d(?:\.\d+)?)", re.M)
-_ROTATION_RE = re.compile(r"rotation of (?P<deg>-?\d+(?:\.\d+)?) degrees")
+@dataclass(frozen=True)
+class _Layout:
+    """How to decode a probed file: stream, coded frame size, and the turn to upright."""
+
+    stream_index: int
+    coded_width: int
+    coded_height: int
+    quarter_turns: int
+    mirror: bool
 
 
-def _rate(match: re.Match | None) -> float | None:
-    if match is None:
-        return None
-    value = float(match["v"]) * (1000.0 if match["k"] else 1.0)
-    return value if value > 0 else None
+class _Damage(Exception):
+    """Raised inside the decoding loop; the caller turns it into an InputError naming the file."""
 
 
-def _snap_ntsc(fps: float) -> float:
-    """ffmpeg prints rates to two decimals; restore the exact NTSC rates (N * 1000 / 1001)."""
-    for base in (24, 30, 48, 60, 120, 240):
-        exact = base * 1000 / 1001
-        if abs(fps - exact) < 0.006:
-            return exact
-    return fps
+def _open_input(path: Path) -> av.container.InputContainer:
+    try:
+        # Metadata are never used; undecodable text in them must not make the file unreadable.
+        return av.open(_url(path), "r", container_options={"protocol_whitelist": "file"}, metadata_errors="replace")
+    except av.error.PermissionError as exc:
+        raise InputError(f"{path}: cannot read file: {_reason(exc)}") from None
+    except av.error.FFmpegError as exc:
+        raise InputError(f"{path}: not a readable video file ({_reason(exc)})") from None
 
 
-def _ffmpeg_open_error(stderr: str) -> str:
-    """The most useful line of ffmpeg's complaint about an input it could not open."""
-    for line in stderr.splitlines():
-        if "Error opening input:" in line:
-            return line.split("Error opening input:", 1)[1].strip()
-    lines = [ln for ln in stderr.splitlines() if ln.strip() and "output file must be specified" not in ln]
-    return _shorten(lines[-1], 300) if lines else "ffmpeg could not read it"
+def _video_stream(container: av.container.InputContainer, path: Path) -> av.video.stream.VideoStream:
+    for stream in container.streams.video:
+        if not stream.disposition & av.stream.Disposition.attached_pic:  # skip cover pictures
+            if stream.codec_context is None:
+                raise InputError(f"{path}: no decoder for the video stream (unknown codec, or a damaged header)")
+            return stream
+    raise InputError(f"{path}: contains no video stream")
 
 
-def _probe(path: str | os.PathLike) -> tuple[Path, VideoInfo, int]:
-    """Probe ``path``; return it as a Path, its :class:`VideoInfo` and the ffmpeg stream index."""
+def _orientation(frame: av.VideoFrame) -> tuple[int, bool]:
+    """``(quarter_turns, mirror)`` that turn ``frame`` upright, from its display matrix."""
+    side = frame.side_data.get("DISPLAYMATRIX")
+    if side is None:
+        return 0, False
+    matrix = np.frombuffer(bytes(side), dtype=np.int32)
+    if matrix.size != 9:
+        return 0, False
+    unit = matrix[[0, 1, 3, 4]] / 65536.0  # 16.16 fixed point
+    snapped = np.round(unit)
+    if np.abs(unit - snapped).max() > 0.02:  # not a multiple of 90 degrees
+        return 0, False
+    return _ORIENTATIONS.get(tuple(int(v) for v in snapped), (0, False))
+
+
+def _setup_decoder(stream: av.video.stream.VideoStream) -> None:
+    ctx = stream.codec_context
+    ctx.thread_type = _DECODER_THREAD_TYPE
+    ctx.thread_count = _DECODER_THREADS
+
+
+def _decoded_frames(container, stream, path: Path) -> Iterator[av.VideoFrame]:
+    """Every decoded frame of ``stream`` in output order; raises :class:`_Damage` after the last good one."""
+    damage = None
+    try:
+        for packet in container.demux(stream):
+            if packet.size == 0:  # the demuxer's end-of-stream marker: flushed below
+                continue
+            if packet.is_corrupt:
+                damage = "the demuxer found a damaged or cut-short packet"
+                break
+            try:
+                frames = stream.decode(packet)
+            except av.error.FFmpegError as exc:
+                damage = f"the {stream.codec_context.name} decoder rejected a packet ({_reason(exc)})"
+                break
+            yield from frames
+        else:
+            entries = stream.index_entries
+            if len(entries):
+                last = entries[len(entries) - 1]
+                if last.pos >= 0 and last.pos + last.size > path.stat().st_size:
+                    damage = "the file ends before the last packet its index lists"
+    except av.error.FFmpegError as exc:
+        damage = f"reading the file failed ({_reason(exc)})"
+    if damage is None:
+        try:
+            yield from stream.decode(None)  # frames still held for reordering
+        except av.error.FFmpegError as exc:
+            damage = f"the {stream.codec_context.name} decoder failed at the end ({_reason(exc)})"
+    if damage is not None:
+        # The frames the decoder still holds are dropped: with a packet missing they could
+        # come out with a gap, and frame i would no longer be decoded frame i.
+        raise _Damage(damage)
+
+
+def _damaged(path: Path, n_read: int, declared: int | None, damage: _Damage) -> InputError:
+    if n_read == 0:
+        return InputError(f"{path}: no video frame could be decoded: {damage}")
+    read = f"{n_read} of the {declared} frames the file declares" if declared else _plural(n_read, "frame")
+    return InputError(f"{path}: video is damaged or truncated: decoded {read}, then {damage}")
+
+
+def _probe(path: str | os.PathLike) -> tuple[Path, VideoInfo, _Layout]:
+    """Probe ``path``; return it as a Path, its :class:`VideoInfo` and how to decode it."""
     path = Path(path)
     try:
         st = path.stat()
@@ -311,64 +322,35 @@ def _probe(path: str | os.PathLike) -> tuple[Path, VideoInfo, int]:
     if st.st_size == 0:
         raise InputError(f"{path}: file is empty")
 
-    cmd = [_ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", _file_url(path)]
-    proc = _popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
-    try:
-        _, err = proc.communicate(timeout=_PROBE_TIMEOUT)
-    except subprocess.TimeoutExpired:
-        _reap(proc, kill=True)
-        raise InputError(f"{path}: ffmpeg could not read the header within {_PROBE_TIMEOUT:g} s") from None
-    except BaseException:
-        _reap(proc, kill=True)
-        raise
-    stderr = err.decode("utf-8", "replace")
-
-    header = _INPUT_RE.search(stderr)
-    if header is None:
-        raise InputError(f"{path}: not a readable video file (ffmpeg: {_ffmpeg_open_error(stderr)})")
-    container = header["format"]
-
-    # First video stream that is a real stream, not a cover picture.
-    lines = stderr[header.start() :].splitlines()
-    for i, line in enumerate(lines):
-        m = _STREAM_RE.match(line)
-        if m and m["kind"] == "Video" and "(attached pic)" not in line:
-            stream_index, rest = int(m["index"]), m["rest"]
-            block = []  # the stream's indented metadata and side data
-            for following in lines[i + 1 :]:
-                if _STREAM_RE.match(following) or not following.startswith("    "):
-                    break
-                block.append(following)
-            break
-    else:
-        raise InputError(f"{path}: contains no video stream")
-
-    size = _SIZE_RE.search(rest)
-    if size is None or int(size["w"]) == 0 or int(size["h"]) == 0:
-        raise InputError(f"{path}: cannot determine the frame size of the video stream ({_shorten(rest, 200)})")
-    width, height = int(size["w"]), int(size["h"])
-    rotation = _ROTATION_RE.search("\n".join(block))
-    if rotation is not None and round(float(rotation["deg"])) % 180 == 90:
-        width, height = height, width  # ffmpeg's autorotation turns the frames upright
-
-    fps = _rate(_FPS_RE.search(rest)) or _rate(_TBR_RE.search(rest)) or 0.0
-    fps = _snap_ntsc(fps)
-
-    d = _DURATION_RE.search(stderr)
-    duration = int(d["h"]) * 3600 + int(d["m"]) * 60 + float(d["s"]) if d else None
-    if duration is not None and duration <= 0:
-        duration = None
-
-    n_frames = None
-    if "mp4" in container.split(",") or "mov" in container.split(","):
-        n_frames = _mp4_sample_count(path, stream_index)
-    if n_frames is None and duration is not None and fps > 0:
-        n_frames = round(duration * fps)
-    return path, VideoInfo(width=width, height=height, fps=fps, n_frames=n_frames, duration=duration), stream_index
+    with _open_input(path) as container:
+        stream = _video_stream(container, path)
+        # The first frame gives the real frame size and the display matrix (PyAV exposes the
+        # matrix on frames only).
+        _setup_decoder(stream)
+        declared = stream.frames or None
+        first = None
+        try:
+            first = next(_decoded_frames(container, stream, path), None)
+        except _Damage as damage:
+            raise _damaged(path, 0, declared, damage) from None
+        if first is None:
+            raise InputError(f"{path}: no video frame could be decoded (the video stream is empty)")
+        turns, mirror = _orientation(first)
+        width, height = (first.height, first.width) if turns % 2 else (first.width, first.height)
+        ctx = stream.codec_context
+        rate = stream.average_rate or ctx.framerate or stream.base_rate
+        fps = float(rate) if rate and rate > 0 else 0.0
+        duration = container.duration / av.time_base if container.duration and container.duration > 0 else None
+        n_frames = declared
+        if n_frames is None and duration is not None and fps > 0:
+            n_frames = round(duration * fps)
+        layout = _Layout(stream.index, first.width, first.height, turns, mirror)
+    info = VideoInfo(width=width, height=height, fps=fps, n_frames=n_frames, duration=duration)
+    return path, info, layout
 
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
-    """Read a video file's header: frame size, frame rate, frame count and duration.
+    """Read a video file's header and first frame: frame size, frame rate, frame count, duration.
 
     Parameters
     ----------
@@ -383,107 +365,16 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
     Raises
     ------
     InputError
-        If the file does not exist, is a folder, is empty, is not something ffmpeg can open, or
-        has no video stream. The message names the file and quotes ffmpeg's reason.
+        If the file does not exist, is a folder, is empty, is not something FFmpeg can open,
+        has no video stream, or its first frame does not decode. The message names the file
+        and the reason.
 
     Notes
     -----
-    Only the header is read: the file is not decoded. A file truncated part-way may therefore
-    probe fine. :func:`read_frames` reports the damage.
+    Only the header and the first frame are decoded, so a file damaged further on probes
+    fine; :func:`read_frames` reports the damage.
     """
     return _probe(path)[1]
-
-
-# --- MP4/MOV: the frame count from the sample table (ISO/IEC 14496-12 boxes) -------------------
-
-
-def _boxes(data: bytes, start: int = 0, end: int | None = None):
-    """Yield ``(type, payload_start, payload_end)`` for the boxes in ``data[start:end]``."""
-    end = len(data) if end is None else end
-    pos = start
-    while pos + 8 <= end:
-        size, kind = struct.unpack_from(">I4s", data, pos)
-        header = 8
-        if size == 1:
-            if pos + 16 > end:
-                return
-            (size,) = struct.unpack_from(">Q", data, pos + 8)
-            header = 16
-        elif size == 0:
-            size = end - pos
-        if size < header or pos + size > end:
-            return
-        yield kind, pos + header, pos + size
-        pos += size
-
-
-def _child(data: bytes, start: int, end: int, kind: bytes) -> tuple[int, int] | None:
-    for k, s, e in _boxes(data, start, end):
-        if k == kind:
-            return s, e
-    return None
-
-
-def _read_moov(path: Path) -> bytes | None:
-    with open(path, "rb") as f:
-        file_size = f.seek(0, os.SEEK_END)
-        pos = 0
-        while pos + 8 <= file_size:
-            f.seek(pos)
-            head = f.read(16)
-            if len(head) < 8:
-                return None
-            size, kind = struct.unpack_from(">I4s", head)
-            header = 8
-            if size == 1 and len(head) == 16:
-                (size,) = struct.unpack_from(">Q", head, 8)
-                header = 16
-            elif size == 0:
-                size = file_size - pos
-            if size < header:
-                return None
-            if kind == b"moov":
-                if size - header > _MAX_MOOV_BYTES:
-                    return None
-                f.seek(pos + header)
-                data = f.read(size - header)
-                return data if len(data) == size - header else None
-            pos += size
-    return None
-
-
-def _mp4_sample_count(path: Path, stream_index: int) -> int | None:
-    """Samples (frames) in MP4/MOV track number ``stream_index``, if it is a video track.
-
-    ffmpeg's mov demuxer makes one stream per ``trak`` box in file order, so stream ``k`` is the
-    ``k``-th track. Returns None for anything unexpected (fragmented MP4, compressed ``moov``,
-    damage), and the caller then falls back to an estimate.
-    """
-    try:
-        moov = _read_moov(path)
-    except OSError:
-        return None
-    if moov is None:
-        return None
-    traks = [(s, e) for k, s, e in _boxes(moov) if k == b"trak"]
-    if stream_index >= len(traks):
-        return None
-    mdia = _child(moov, *traks[stream_index], b"mdia")
-    if mdia is None:
-        return None
-    hdlr = _child(moov, *mdia, b"hdlr")
-    if hdlr is None or hdlr[1] - hdlr[0] < 12 or moov[hdlr[0] + 8 : hdlr[0] + 12] != b"vide":
-        return None
-    minf = _child(moov, *mdia, b"minf")
-    stbl = _child(moov, *minf, b"stbl") if minf else None
-    if stbl is None:
-        return None
-    for kind in (b"stsz", b"stz2"):
-        box = _child(moov, *stbl, kind)
-        if box is not None and box[1] - box[0] >= 12:
-            (count,) = struct.unpack_from(">I", moov, box[0] + 8)
-            return count if count > 0 else None  # 0: fragmented MP4, frames live in 'moof' boxes
-    return None
 
 
 # --------------------------------------------------------------------------------------------
@@ -494,9 +385,9 @@ def _mp4_sample_count(path: Path, stream_index: int) -> int | None:
 def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.ndarray, None, None]:
     """Decode a video file frame by frame.
 
-    The file is probed right away, so a missing or unreadable file raises here. ffmpeg starts
-    at the first ``next()``. Decoding then runs in a background thread, up to ``prefetch``
-    frames ahead of the consumer.
+    The file is probed right away, so a missing or unreadable file raises here. Decoding starts
+    at the first ``next()`` and then runs in a background thread, up to ``prefetch`` frames
+    ahead of the consumer.
 
     Parameters
     ----------
@@ -515,16 +406,15 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.n
     Raises
     ------
     InputError
-        If :func:`probe_video` refuses the file, if no frame can be decoded, or, after the last
-        good frame, if the file is damaged part-way. See "Damaged files" in the module
-        docstring for the exact rule.
+        If :func:`probe_video` refuses the file, or, after the last good frame, if the file is
+        damaged part-way. See "Damaged files" in the module docstring.
     ValueError
         If ``prefetch`` is not a positive integer.
 
     Notes
     -----
-    Stopping early (``break``) stops ffmpeg and the decoding thread as soon as the generator is
-    closed. CPython does this when the last reference disappears, for example with
+    Stopping early (``break``) stops the decoding thread as soon as the generator is closed.
+    CPython does this when the last reference disappears, for example with
     ``for frame in read_frames(p): ... break``. When you keep a reference, call ``.close()`` or
     use :func:`contextlib.closing`.
 
@@ -538,78 +428,70 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.n
     """
     if isinstance(prefetch, bool) or not isinstance(prefetch, (int, np.integer)) or prefetch < 1:
         raise ValueError(f"prefetch must be a positive integer, got {prefetch!r}")
-    path, info, stream_index = _probe(path)
-    return _decode(path, info, stream_index, int(prefetch))
+    path, _, layout = _probe(path)
+    return _decode(path, layout, int(prefetch))
+
+
+def _to_rgb(frame: av.VideoFrame, layout: _Layout, scaler: VideoReformatter) -> np.ndarray:
+    """An upright RGB copy of ``frame`` that nothing else references."""
+    rgb = scaler.reformat(
+        frame, width=layout.coded_width, height=layout.coded_height, format="rgb24", threads=_SCALER_THREADS
+    )
+    array = rgb.to_ndarray()  # a view of the new frame's buffer, which it keeps alive
+    if layout.quarter_turns:
+        array = np.rot90(array, layout.quarter_turns)
+    if layout.mirror:
+        array = array[:, ::-1]
+    # Copy if the view is strided (rotated, or rows padded for alignment) or is the decoder's
+    # own buffer (an RGB codec needs no conversion).
+    if rgb is frame or not (array.flags.c_contiguous and array.flags.writeable):
+        array = array.copy(order="C")
+    return array
 
 
 class _DecodeState:
     """Filled in by the decoder thread for the consumer."""
 
     def __init__(self) -> None:
-        self.partial_bytes = 0
         self.error: BaseException | None = None
 
 
-def _decoder_thread(stdout, shape: tuple[int, int, int], q: queue.Queue, stop: threading.Event, state: _DecodeState) -> None:
-    nbytes = shape[0] * shape[1] * shape[2]
+def _decoder_thread(path: Path, layout: _Layout, q: queue.Queue, stop: threading.Event, state: _DecodeState) -> None:
+    n_read = 0
     try:
-        while not stop.is_set():
-            frame = np.empty(shape, dtype=np.uint8)
-            view = memoryview(frame).cast("B")
-            got = 0
-            while got < nbytes:
-                n = stdout.readinto(view[got:])
-                if not n:
-                    break
-                got += n
-            if got < nbytes:
-                state.partial_bytes = got
-                break
-            if not _put(q, frame, stop):
-                return
-    except BaseException as exc:  # a read error on the pipe; reported by the consumer
+        with _open_input(path) as container:
+            stream = container.streams[layout.stream_index]
+            _setup_decoder(stream)
+            scaler = VideoReformatter()
+            try:
+                for frame in _decoded_frames(container, stream, path):
+                    if not _put(q, _to_rgb(frame, layout, scaler), stop):
+                        return
+                    n_read += 1
+            except _Damage as damage:
+                state.error = _damaged(path, n_read, stream.frames or None, damage)
+    except InputError as exc:
+        state.error = exc
+    except av.error.FFmpegError as exc:
+        state.error = InputError(f"{path}: decoding failed after {_plural(n_read, 'frame')}: {_reason(exc)}")
+    except BaseException as exc:  # a bug: re-raised as it is in the consumer's thread
         state.error = exc
     finally:
         _put(q, _END, stop)
 
 
-def _decode(path: Path, info: VideoInfo, stream_index: int, prefetch: int) -> Generator[np.ndarray, None, None]:
-    cmd = [
-        _ffmpeg_exe(),
-        "-hide_banner",
-        "-nostdin",
-        "-nostats",
-        "-loglevel",
-        "error",
-        "-i",
-        _file_url(path),
-        "-map",
-        f"0:{stream_index}",
-        "-fps_mode",
-        "passthrough",
-        "-f",
-        "rawvideo",
-        "-pix_fmt",
-        "rgb24",
-        "pipe:1",
-    ]
-    shape = (info.height, info.width, 3)
-    proc = _popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE)
-    stderr = _StderrCollector(proc.stderr)
-    stderr.start()
+def _decode(path: Path, layout: _Layout, prefetch: int) -> Generator[np.ndarray, None, None]:
     q: queue.Queue = queue.Queue(maxsize=prefetch)
     stop = threading.Event()
     state = _DecodeState()
     thread = threading.Thread(
         target=_decoder_thread,
-        args=(proc.stdout, shape, q, stop, state),
+        args=(path, layout, q, stop, state),
         name="vehicle_detection-video-decoder",
         daemon=True,
     )
     thread.start()
-
     n_yielded = 0
-    complete = False
     try:
         while True:
             item = q.get()
@@ -617,42 +499,61 @@ def _decode(path: Path, info: VideoInfo, stream_index: int, prefetch: int) -> Ge
                 break
             n_yielded += 1
             yield item
-        complete = True
     finally:
-        # On early close or an exception: kill ffmpeg first, so a blocked read returns, then
-        # unblock a put the thread may be waiting in, then reap everything.
+        # On early close or an exception: unblock a put the thread may be waiting in, and wait
+        # for it to close the file (it checks ``stop`` after every frame).
         stop.set()
-        returncode = _reap(proc, kill=not complete, timeout=30)
         _drain(q)
         thread.join()
-        proc.stdout.close()
-        stderr.join()
-
     if state.error is not None:
-        raise InputError(f"{path}: reading decoded frames from ffmpeg failed: {state.error}") from state.error
+        raise state.error
     if n_yielded == 0:
-        raise InputError(f"{path}: no video frame could be decoded: {stderr.summary()}")
-    if returncode != 0:
-        raise InputError(
-            f"{path}: ffmpeg failed to decode the video (exit status {returncode}) "
-            f"after {n_yielded} frame(s): {stderr.summary()}"
-        )
-    if state.partial_bytes:
-        raise InputError(
-            f"{path}: decoding ended in the middle of frame {n_yielded} ({state.partial_bytes} of "
-            f"{shape[0] * shape[1] * 3} bytes); the frame size {info.width}x{info.height} found "
-            f"by probing does not match the decoded frames"
-        )
-    if stderr.n_lines and info.n_frames is not None and n_yielded < info.n_frames:
-        raise InputError(
-            f"{path}: video is damaged or truncated: decoded {n_yielded} of the {info.n_frames} "
-            f"frames the file declares (ffmpeg: {stderr.first()})"
-        )
+        raise InputError(f"{path}: no video frame could be decoded")
 
 
 # --------------------------------------------------------------------------------------------
 # Writing
 # --------------------------------------------------------------------------------------------
+
+
+class _OutputFile:
+    """The temporary output file, handed to PyAV's muxer as a Python file object.
+
+    Writes are unbuffered and complete (the muxer ignores short writes). With ``+faststart``
+    the muxer reopens the file by :attr:`name` to move the index to the front; an absolute path
+    is never taken for a protocol. Closing this file before the muxer makes the muxer skip
+    writing the index, so abandoning a long video is instant.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.name = os.fspath(path.absolute())
+        self._raw = open(self.name, "wb", buffering=0)
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        total = len(view)
+        while view:
+            view = view[self._raw.write(view) :]
+        return total
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        return self._raw.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._raw.tell()
+
+    def seekable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    @property
+    def closed(self) -> bool:
+        return self._raw.closed
+
+    def close(self) -> None:
+        self._raw.close()
 
 
 class VideoWriter:
@@ -664,9 +565,10 @@ class VideoWriter:
         Output file. It appears only once the video is complete (see
         :func:`vehicle_detection._files.atomic_output`). The container is always MP4, whatever
         the suffix.
-    fps : float
-        Frame rate of the output, > 0 (for example :attr:`VideoInfo.fps` of the input). Common
-        rates such as ``30000 / 1001`` are kept exact.
+    fps : float or Fraction
+        Frame rate of the output, > 0 (for example :attr:`VideoInfo.fps` of the input). It is
+        stored as a fraction with a denominator of at most 10,000, so rates such as
+        ``30000 / 1001`` are kept exact.
     size : tuple of int
         ``(width, height)`` of every frame that will be written. Odd values are padded to even
         with a black column on the right or a black row at the bottom, because H.264 4:2:0
@@ -702,12 +604,14 @@ class VideoWriter:
 
     Notes
     -----
-    Use it as a context manager. :meth:`write` returns as soon as the frame is queued. When the
-    encoder falls more than a few frames behind, it blocks until there is room (backpressure).
-    If the block raises (including ``KeyboardInterrupt``), ffmpeg
-    is killed, the partial file is deleted, and nothing is created under ``path``. If ffmpeg
-    fails, or the block writes no frame, :class:`~vehicle_detection.errors.OutputError` is
-    raised with the same cleanup. Call :meth:`write` from one thread only.
+    Use it as a context manager. Entering it creates the temporary file and opens the encoder
+    (an encoder that refuses the settings raises :class:`~vehicle_detection.errors.OutputError`
+    there). :meth:`write` returns as soon as the frame is queued. When the encoder falls more
+    than a few frames behind, it blocks until there is room (backpressure). If the block raises
+    (including ``KeyboardInterrupt``), the encoder thread stops, the partial file is deleted,
+    and nothing is created under ``path``. If encoding fails, or the block writes no frame,
+    :class:`~vehicle_detection.errors.OutputError` is raised with the same cleanup. Call
+    :meth:`write` from one thread only.
 
     Examples
     --------
@@ -748,13 +652,15 @@ class VideoWriter:
         self.overwrite = bool(overwrite)
         self.path = check_output_path(path, overwrite=self.overwrite, inputs=self.inputs)
         self.fps = fps_value
+        self._rate = Fraction(fps if isinstance(fps, Fraction) else fps_value).limit_denominator(10_000)
         self.size = (int(width), int(height))
         self.crf = int(crf)
         self.preset = preset
         self._frames_written = 0
         self._atomic = None
-        self._proc: subprocess.Popen | None = None
-        self._stderr: _StderrCollector | None = None
+        self._file: _OutputFile | None = None
+        self._container = None
+        self._stream = None
         self._queue: queue.Queue = queue.Queue(maxsize=_WRITE_QUEUE_SIZE)
         self._thread: threading.Thread | None = None
         self._failure: BaseException | None = None
@@ -775,57 +681,27 @@ class VideoWriter:
 
     # -- lifecycle ---------------------------------------------------------------------------
 
-    def _command(self, tmp: Path) -> list[str]:
-        width, height = self.size
-        rate = Fraction(self.fps).limit_denominator(10_000)
-        filters = []
-        if self.output_size != self.size:
-            filters.append("pad={}:{}:0:0:black".format(*self.output_size))
-        # RGB -> YUV with the BT.709 matrix, and tag the stream accordingly, so players (and
-        # read_frames) convert back with the same matrix and colours survive the round trip.
-        filters.append("scale=out_color_matrix=bt709:out_range=tv,format=yuv420p")
-        return [
-            _ffmpeg_exe(),
-            "-hide_banner",
-            "-nostdin",
-            "-nostats",
-            "-loglevel",
-            "error",
-            "-f",
-            "rawvideo",
-            "-pix_fmt",
-            "rgb24",
-            "-video_size",
-            f"{width}x{height}",
-            "-framerate",
-            f"{rate.numerator}/{rate.denominator}",
-            "-i",
-            "pipe:0",
-            "-vf",
-            ",".join(filters),
-            "-c:v",
-            "libx264",
-            "-preset",
-            self.preset,
-            "-crf",
-            str(self.crf),
-            "-pix_fmt",
-            "yuv420p",
-            "-colorspace",
-            "bt709",
-            "-color_primaries",
-            "bt709",
-            "-color_trc",
-            "bt709",
-            "-color_range",
-            "tv",
-            "-movflags",
-            "+faststart",
-            "-f",
-            "mp4",
-            "-y",  # the temporary file exists (empty) already
-            _file_url(tmp),
-        ]
+    def _open(self, tmp: Path) -> None:
+        """Open the MP4 muxer on ``tmp`` and the libx264 encoder."""
+        self._file = _OutputFile(tmp)
+        self._container = av.open(
+            self._file,
+            "w",
+            format="mp4",
+            container_options={"movflags": "+faststart", "protocol_whitelist": "file"},
+            buffer_size=_OUTPUT_BUFFER_BYTES,
+        )
+        stream = self._container.add_stream(
+            "libx264", rate=self._rate, options={"crf": str(self.crf), "preset": self.preset}
+        )
+        stream.width, stream.height = self.output_size
+        stream.pix_fmt = "yuv420p"
+        ctx = stream.codec_context
+        ctx.thread_count = _ENCODER_THREADS
+        ctx.color_range = _LIMITED_RANGE
+        ctx.color_primaries = ctx.color_trc = ctx.colorspace = _BT709
+        ctx.open()  # a refusal of the settings surfaces here, not at the first frame
+        self._stream = stream
 
     def __enter__(self) -> VideoWriter:
         if self._used:
@@ -834,9 +710,10 @@ class VideoWriter:
         self._atomic = atomic_output(self.path, overwrite=self.overwrite, inputs=self.inputs)
         tmp = self._atomic.__enter__()
         try:
-            self._proc = _popen(self._command(tmp), stdin=subprocess.PIPE, stdout=subprocess.DEVNULL)
-            self._stderr = _StderrCollector(self._proc.stderr)
-            self._stderr.start()
+            try:
+                self._open(tmp)
+            except (av.error.FFmpegError, OSError) as exc:
+                raise OutputError(f"{self.path}: cannot start the H.264 encoder ({self._settings()}): {_reason(exc)}") from None
             self._thread = threading.Thread(
                 target=self._encoder_thread, name="vehicle_detection-video-encoder", daemon=True
             )
@@ -860,27 +737,40 @@ class VideoWriter:
         self._atomic.__exit__(None, None, None)  # renames the finished file into place
         return False
 
+    def _settings(self) -> str:
+        return "{}x{}, {} fps, preset {}, crf {}".format(*self.output_size, self._rate, self.preset, self.crf)
+
     def _encoder_thread(self) -> None:
-        assert self._proc is not None and self._proc.stdin is not None
-        fd = self._proc.stdin.fileno()
+        """Convert, encode and mux the queued frames; flush and close the file at the end marker."""
+        scaler = VideoReformatter()
+        stream, container = self._stream, self._container
+        pts = 0
         while True:
             item = self._queue.get()
             if item is _END:
-                return
+                break
             if self._failure is not None:
                 continue  # keep draining so that write() never blocks on a dead encoder
             try:
-                view = memoryview(item).cast("B")
-                while view:
-                    view = view[os.write(fd, view) :]
-            except BaseException as exc:  # BrokenPipeError when ffmpeg has died
+                rgb = av.VideoFrame.from_numpy_buffer(item, format="rgb24")
+                yuv = scaler.reformat(
+                    rgb, format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG", threads=_SCALER_THREADS
+                )
+                yuv.pts = pts
+                pts += 1
+                container.mux(stream.encode(yuv))
+            except BaseException as exc:
+                self._failure = exc
+        if self._failure is None:
+            try:
+                container.mux(stream.encode(None))  # the frames x264 still holds
+                container.close()  # writes the index, moved to the front (+faststart)
+                self._file.close()
+            except BaseException as exc:
                 self._failure = exc
 
-    def _ffmpeg_error(self, what: str) -> OutputError:
-        returncode = self._proc.poll() if self._proc is not None else None
-        status = f" (exit status {returncode})" if returncode is not None else ""
-        tail = self._stderr.summary() if self._stderr is not None else ""
-        return OutputError(f"{self.path}: {what}{status}: {tail}")
+    def _encode_error(self) -> OutputError:
+        return OutputError(f"{self.path}: encoding the video failed: {_reason(self._failure)}")
 
     def _finish(self) -> None:
         if self._frames_written == 0:
@@ -888,32 +778,22 @@ class VideoWriter:
         self._queue.put(_END)
         self._thread.join()
         if self._failure is not None:
-            _reap(self._proc, kill=True)
-            self._stderr.join()
-            raise self._ffmpeg_error("ffmpeg stopped accepting frames")
-        self._proc.stdin.close()  # EOF: ffmpeg flushes the encoder and writes the MP4 index
-        returncode = _reap(self._proc, kill=False)  # no time limit: +faststart rewrites the file
-        self._stderr.join()
-        if returncode != 0:
-            raise self._ffmpeg_error("ffmpeg failed to encode the video")
+            raise self._encode_error()
 
     def _abort(self) -> None:
-        """Kill ffmpeg, stop the encoder thread and reap everything; never raises."""
-        proc = self._proc
-        if proc is not None:
-            _reap(proc, kill=True)  # a write blocked on the pipe now fails; the thread drains
+        """Stop the encoder thread and close the file without finishing it; never raises."""
         if self._thread is not None and self._thread.is_alive():
             self._failure = self._failure or OutputError("aborted")
             _drain(self._queue)
             self._queue.put(_END)
             self._thread.join()
-        if proc is not None:
+        if self._file is not None:
+            self._file.close()  # first, so that closing the muxer skips writing the index
+        if self._container is not None:
             try:
-                proc.stdin.close()
-            except OSError:
+                self._container.close()  # no-op if the thread closed it already
+            except Exception:
                 pass
-        if self._stderr is not None:
-            self._stderr.join()
 
     # -- writing -----------------------------------------------------------------------------
 
@@ -931,11 +811,11 @@ class VideoWriter:
         ValueError
             If the frame is not uint8 or does not have shape ``(height, width, 3)``.
         OutputError
-            If ffmpeg has failed. The message ends with ffmpeg's last error lines.
+            If encoding has failed. The message names the file and the encoder's reason.
         RuntimeError
             If called outside the ``with`` block.
         """
-        if self._proc is None or self._thread is None or not self._thread.is_alive():
+        if self._thread is None or not self._thread.is_alive():
             raise RuntimeError("VideoWriter.write() must be called inside its 'with' block")
         frame = np.asarray(frame)
         width, height = self.size
@@ -947,113 +827,11 @@ class VideoWriter:
         if frame.dtype != np.uint8:
             raise ValueError(f"frame has dtype {frame.dtype}, expected uint8 RGB")
         if self._failure is not None:
-            raise self._ffmpeg_error("ffmpeg stopped accepting frames")
-        self._queue.put(np.array(frame, dtype=np.uint8, order="C", copy=True))
+            raise self._encode_error()
+        if self.output_size == self.size:
+            copy = np.array(frame, dtype=np.uint8, order="C", copy=True)
+        else:
+            copy = np.zeros((self.output_size[1], self.output_size[0], 3), np.uint8)
+            copy[:height, :width] = frame
+        self._queue.put(copy)
         self._frames_written += 1
-
-
-# --- detection over a video --------------------------------------------------------------------
-
-
-def process_video(
-    path: str | os.PathLike,
-    output: str | os.PathLike | None = None,
-    *,
-    detector=None,
-    boxes_csv: str | os.PathLike | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-    max_frames: int | None = None,
-    crf: int = 23,
-    preset: str = "ultrafast",
-):
-    """Detect and track vehicles through a video; write the annotated video and the boxes.
-
-    Decoding (a thread and an ffmpeg process), detection (this thread, numba on both cores)
-    and encoding (a thread and an ffmpeg process) overlap.
-
-    Parameters
-    ----------
-    path : path-like
-        Any video ffmpeg reads.
-    output : path-like, optional
-        Annotated H.264 MP4 to write (atomically); None writes no video.
-    detector : Detector, optional
-        Defaults to ``Detector()`` (the embedded model).
-    boxes_csv : path-like, optional
-        CSV of every reported box (``frame,x1,y1,x2,y2,track_id,score``), written atomically
-        once the whole video is processed, just before the video is renamed into place; it is
-        removed again if the video then fails, so a failed run leaves neither.
-    overwrite : bool
-        Replace existing outputs (never the input).
-    progress : bool
-        Show a progress bar on stderr.
-    max_frames : int, optional
-        Stop after this many frames.
-    crf, preset : int, str
-        x264 quality (lower is better) and speed preset. ``ultrafast`` leaves the most CPU to
-        the detector (files about twice the size of ``veryfast`` at the same ``crf``).
-
-    Returns
-    -------
-    Detections
-        Every reported box, frame by frame (``frame``: 0-based decoded frame index), tracked.
-    """
-    import contextlib
-    from contextlib import ExitStack
-
-    from .detections import Detections
-    from .detector import Detector
-    from .drawing import draw_detections
-    from .tables import write_boxes_csv
-
-    path = Path(path)
-    detector = detector or Detector()
-    # Refuse bad outputs before decoding anything.
-    for out in (output, boxes_csv):
-        if out is not None:
-            check_output_path(out, overwrite=overwrite, inputs=[path])
-    if output is not None and boxes_csv is not None and Path(output).resolve() == Path(boxes_csv).resolve():
-        raise OutputError(f"{output}: the video and the boxes CSV cannot be the same file")
-    info = probe_video(path)
-    total = info.n_frames if max_frames is None else min(max_frames, info.n_frames or max_frames)
-    tracker = detector.new_tracker()
-    detections = []
-    frames = read_frames(path)
-    csv_written = False
-    try:
-        with ExitStack() as stack:
-            writer = None
-            if output is not None:
-                writer = stack.enter_context(
-                    VideoWriter(output, info.fps, info.size, overwrite=overwrite, inputs=[path], crf=crf, preset=preset)
-                )
-            bar = None
-            if progress and sys.stderr.isatty():
-                from tqdm import tqdm
-
-                bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
-            source = frames if max_frames is None else itertools.islice(frames, max_frames)
-            for frame, found in detector.track_frames(source, tracker):
-                detections.append(found)
-                if writer is not None:
-                    writer.write(draw_detections(frame, found))
-                if bar is not None:
-                    bar.update()
-            table = Detections.concatenate(detections)
-            if boxes_csv is not None:
-                # Written before the video is renamed into place: once the video exists under
-                # its final name, the CSV is complete too.
-                write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
-                csv_written = True
-    except BaseException:
-        # The video failed after the CSV was renamed into place (ffmpeg failing to finish the
-        # file, Ctrl-C during its final flush): remove the CSV too, so that no output of a
-        # failed run is left looking finished.
-        if csv_written:
-            with contextlib.suppress(OSError):
-                Path(boxes_csv).unlink()
-        raise
-    finally:
-        frames.close()
-    return table
