@@ -86,3 +86,8 @@ def test_detector_refuses_wrong_types():
         Detector(model=object())
     with pytest.raises(ValueError, match="DetectorConfig"):
         Detector(config=TrackerConfig())
+
+
+def test_no_box_on_the_empty_road(test_frames):
+    """test2.jpg shows an empty road (and the barrier at the left edge): no box."""
+    assert len(Detector().detect_image(test_frames[1])) == 0

@@ -36,7 +36,7 @@ class DetectorConfig:
 
     plan: SearchPlan = field(default_factory=SearchPlan)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
-    image_threshold: float = 2.0
+    image_threshold: float = 3.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
