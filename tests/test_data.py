@@ -361,3 +361,29 @@ def test_load_dataset_uses_env_then_cwd(tmp_path, monkeypatch):
     # The argument beats the environment.
     monkeypatch.setenv(DATA_ENV, str(tmp_path / "nowhere"))
     assert len(load_dataset(env_root)) == 2
+
+
+def test_archives_are_closed_after_loading(tmp_path, monkeypatch):
+    import zipfile
+
+    from PIL import Image
+
+    import vehicle_detection.data as data_module
+
+    for cls in ("vehicles", "non-vehicles"):
+        with zipfile.ZipFile(tmp_path / f"{cls}.zip", "w") as zf:
+            for i in range(3):
+                buf = io.BytesIO()
+                Image.new("RGB", (64, 64), (i * 40, 0, 0)).save(buf, format="PNG")
+                zf.writestr(f"{cls}/src/{i}.png", buf.getvalue())
+    opened = []
+
+    class Recording(zipfile.ZipFile):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            opened.append(self)
+
+    monkeypatch.setattr(data_module.zipfile, "ZipFile", Recording)
+    ds = load_dataset(tmp_path)
+    assert len(ds) == 6 and len(opened) == 2
+    assert all(zf.fp is None for zf in opened)  # closed

@@ -498,7 +498,7 @@ def test_feature_config_needs_three_blocks_per_window(ppc, cpb, ok):
 
     rng = np.random.default_rng(1)
     model = VehicleClassifier.fit(rng.normal(size=(20, cfg.n_features)), np.repeat([0, 1], 10), cfg)
-    frame = rng.integers(0, 256, (720, 160, 3), dtype=np.uint8)
+    frame = rng.integers(0, 256, (720, 256, 3), dtype=np.uint8)
     plan = SearchPlan(scales=(SearchScale(1.0, 400, 496),))
     fast = search(frame, model, plan, all_windows=True)
     assert len(fast) > 0

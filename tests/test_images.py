@@ -391,3 +391,16 @@ def test_list_images_empty_or_missing_folder(tmp_path):
     a_file = tmp_path / "only.txt"
     with pytest.raises(InputError):
         list_images(a_file)
+
+
+def test_pillow_global_setting_is_left_alone_and_the_pixel_limit_holds(tmp_path, monkeypatch):
+    import PIL.Image
+
+    import vehicle_detection.images as images
+
+    assert PIL.Image.MAX_IMAGE_PIXELS == 89_478_485  # Pillow's own default, untouched by the import
+    monkeypatch.setattr(images, "MAX_IMAGE_PIXELS", 100 * 100 - 1)
+    path = tmp_path / "square.png"
+    PIL.Image.new("RGB", (100, 100)).save(path)
+    with pytest.raises(InputError, match="square.png: image of 100x100 pixels is larger than 9,999 pixels"):
+        read_image(path)

@@ -24,6 +24,7 @@ PNGs by blocks of ``track_length`` file numbers, and no extra group is shared wi
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
@@ -110,12 +111,13 @@ def _file_number(name: str) -> int:
     return int(nums[-1]) if nums else 0
 
 
-def _list_members(root: Path, cls: str) -> tuple[list[str], callable]:
-    """Names of the PNG patches of one class and a function reading one name's bytes."""
+def _list_members(root: Path, cls: str, stack: contextlib.ExitStack) -> tuple[list[str], callable]:
+    """Names of the PNG patches of one class and a function reading one name's bytes (an
+    archive stays open until ``stack`` closes)."""
     archive, folder = root / f"{cls}.zip", root / cls
     if archive.is_file():
         try:
-            zf = zipfile.ZipFile(archive)
+            zf = stack.enter_context(zipfile.ZipFile(archive))
         except (zipfile.BadZipFile, OSError) as exc:
             raise InputError(f"{archive}: not a readable zip archive ({exc}); delete it and download again") from None
         names = [
@@ -274,9 +276,14 @@ def load_dataset(
         raise InputError(
             f"{root}: data folder not found; run `vehicle-detection download` or pass --data-dir (or set ${DATA_ENV})"
         )
+    with contextlib.ExitStack() as stack:  # the archives are closed once every patch is read
+        return _load(root, stack, drop_duplicates, track_length, n_jobs, extra_negatives)
+
+
+def _load(root: Path, stack: contextlib.ExitStack, drop_duplicates: bool, track_length: int, n_jobs: int, extra_negatives) -> Dataset:
     entries = []
     for cls in CLASSES:
-        names, read = _list_members(root, cls)
+        names, read = _list_members(root, cls, stack)
         if not names:
             raise InputError(f"{root}: no PNG images under {cls}/")
         names.sort(key=lambda n: (n.rsplit("/", 1)[0], _file_number(n), n))

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import functools
 import io
+import warnings
 import os
 from pathlib import Path
 
@@ -61,8 +62,9 @@ __all__ = [
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 
-# Pillow refuses to open images larger than this many pixels (decompression bombs).
-Image.MAX_IMAGE_PIXELS = 100_000_000
+#: Largest image, in pixels, decoded (decompression bombs). Checked here, image by image, rather
+#: than by changing Pillow's global ``Image.MAX_IMAGE_PIXELS`` for the whole process.
+MAX_IMAGE_PIXELS = 100_000_000
 
 #: Widest accepted frame, width / height (a 1280x720 dashcam frame is 1.78; a 360-degree
 #: panorama strip 6 to 8).
@@ -215,9 +217,15 @@ def decode_image(data: bytes, name: str = "<bytes>") -> np.ndarray:
     if not data:
         raise InputError(f"{name}: empty file, not an image")
     try:
-        with Image.open(io.BytesIO(data)) as img:
+        with warnings.catch_warnings():
+            # Pillow warns above its own limit; ours is below, checked just after.
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(io.BytesIO(data))
+        with img:
             stored_size = img.size
             width, height = stored_size
+            if width * height > MAX_IMAGE_PIXELS:
+                raise InputError(f"{name}: image of {width}x{height} pixels is larger than {MAX_IMAGE_PIXELS:,} pixels")
             # Before the pixels are decoded. A PNG may keep its EXIF after the pixels (Pillow
             # would decode them to find it): then only the shapes refused either way round.
             if img.format != "PNG" or "exif" in img.info:
