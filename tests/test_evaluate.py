@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from strategies import box_sets
 
 from vehicle_detection.detections import Detections
 from vehicle_detection.errors import InputError
@@ -385,17 +386,6 @@ class TestEvaluateDetections:
 # --------------------------------------------------------------------------------------------
 # Properties
 # --------------------------------------------------------------------------------------------
-@st.composite
-def box_sets(draw, max_boxes=6, max_coord=60, max_size=40):
-    n = draw(st.integers(0, max_boxes))
-    out = []
-    for _ in range(n):
-        x1 = draw(st.integers(0, max_coord))
-        y1 = draw(st.integers(0, max_coord))
-        out.append([x1, y1, x1 + draw(st.integers(1, max_size)), y1 + draw(st.integers(1, max_size))])
-    return np.array(out, dtype=np.int64).reshape(-1, 4)
-
-
 def _best_matching(iou: np.ndarray, threshold: float) -> tuple[int, float]:
     """(most pairs, largest IoU sum among those) over all one-to-one matchings, by brute force."""
     n_det, n_car = iou.shape

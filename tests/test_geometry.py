@@ -8,19 +8,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from strategies import box_sets
 
 from vehicle_detection.geometry import as_boxes, box_iou, match_boxes
-
-
-@st.composite
-def box_sets(draw, max_boxes=6, max_coord=60, max_size=40):
-    n = draw(st.integers(0, max_boxes))
-    out = []
-    for _ in range(n):
-        x1 = draw(st.integers(0, max_coord))
-        y1 = draw(st.integers(0, max_coord))
-        out.append([x1, y1, x1 + draw(st.integers(1, max_size)), y1 + draw(st.integers(1, max_size))])
-    return np.array(out, dtype=np.int64).reshape(-1, 4)
 
 
 # --------------------------------------------------------------------------------------------
