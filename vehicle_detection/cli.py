@@ -464,7 +464,8 @@ def _cmd_detect(args) -> int:
                 write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs)
                 found.append(det)
                 print(f"{f}: {len(det)} vehicles -> {o}")  # progress; o appears at the end
-            write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs)
+            names = [f.name for f, det in zip(files, found) for _ in range(len(det))]
+            write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs, files=names)
             report = [f"boxes: {boxes}"]
     for line in report:
         print(line)
