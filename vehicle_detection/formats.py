@@ -2,8 +2,10 @@
 
 * :func:`write_mot` writes a MOTChallenge (MOT15/16/17) ``det``/``res`` text file: one line
   ``frame,id,bb_left,bb_top,bb_width,bb_height,conf,-1,-1,-1`` per box, with **1-based**
-  frames (decoded index + 1), ``id`` the track id (-1 for untracked boxes, as in ``det`` files),
-  width and height in pixels (``x2 - x1``, ``y2 - y1``: boxes are x2/y2 exclusive).
+  frames (decoded index + 1) and 1-based pixel coordinates as in the MOTChallenge files
+  (``bb_left = x1 + 1``, ``bb_top = y1 + 1``; py-motmetrics subtracts the 1 again when it reads
+  them), ``id`` the track id (-1 for untracked boxes, as in ``det`` files), width and height in
+  pixels (``x2 - x1``, ``y2 - y1``: boxes are x2/y2 exclusive).
 * :func:`write_coco` writes COCO detection results for a folder of images: ``images`` (id, file
   name, width, height), ``categories`` (one: ``car``), ``annotations`` (id, image_id,
   category_id, ``bbox`` ``[x, y, w, h]``, ``area``, ``score``, ``iscrowd`` 0, and ``track_id``
@@ -44,10 +46,10 @@ def _optional(module: str, extra: str):
 
 
 def write_mot(path: str | os.PathLike, detections: Detections, *, overwrite: bool = False, inputs: Iterable = ()) -> Path:
-    """Write a MOTChallenge text file (1-based frames; ``frame,id,x,y,w,h,conf,-1,-1,-1``), atomically."""
+    """Write a MOTChallenge text file (``frame,id,x,y,w,h,conf,-1,-1,-1``, 1-based frames and pixels), atomically."""
     lines = []
     for frame, x1, y1, x2, y2, track_id, score in detections.rows():
-        lines.append(f"{frame + 1},{track_id},{x1},{y1},{x2 - x1},{y2 - y1},{score:.4f},-1,-1,-1")
+        lines.append(f"{frame + 1},{track_id},{x1 + 1},{y1 + 1},{x2 - x1},{y2 - y1},{score:.4f},-1,-1,-1")
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text("".join(line + "\n" for line in lines), encoding="utf-8", newline="\n")
     return Path(path)
