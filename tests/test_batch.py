@@ -318,3 +318,30 @@ def test_moviepy_adapter_with_moviepy(tmp_path):
     frames = list(clip.image_transform(adapter).iter_frames())
     assert adapter.frames_processed == len(frames)
     clip.close()
+
+
+def test_sigterm_with_jobs_leaves_no_partial_files(videos, tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(videos), "--out-dir", str(out), "--jobs", "2", "--no-progress"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (out.is_dir() and any(p.name.endswith(".partial") for p in out.iterdir())):
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "vehicle-detection: interrupted"
+    left = sorted(p.name for p in out.iterdir()) if out.exists() else []
+    assert not [n for n in left if n.endswith(".partial")], left
+    # An input is committed whole or not at all: its video and its CSV together.
+    stems = {n.split("_")[0] for n in left}
+    assert sorted(left) == sorted(n for s in stems for n in (f"{s}_boxes.csv", f"{s}_detected.mp4"))
