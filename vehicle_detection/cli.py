@@ -576,7 +576,7 @@ def _cmd_detect_one(args) -> int:
                 write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs)
                 found.append(det)
                 print(f"{f}: {len(det)} vehicles -> {o}")  # progress; o appears at the end
-            names = [f.name for f, det in zip(files, found) for _ in range(len(det))]
+            names = [f.name for f, det in zip(files, found) for _ in range(len(det))] if kind == "folder" else None
             write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs, files=names)
             report = [f"boxes: {boxes}"]
     for line in report:
