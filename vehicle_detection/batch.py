@@ -676,9 +676,17 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
                 report(results[k])
     except BaseException:
         # Ctrl-C, SIGTERM: stop the workers the same way (each cleans up its partial outputs), then wait for them.
-        for proc in list(getattr(pool, "_processes", {}).values()):
-            if proc.is_alive():
+        # Repeated until every worker has exited: a worker may have taken the next queued input
+        # after cleaning up the first (a second SIGTERM during a clean-up is ignored).
+        procs = list(getattr(pool, "_processes", {}).values())
+        for _ in range(600):
+            alive = [p for p in procs if p.is_alive()]
+            if not alive:
+                break
+            for proc in alive:
                 proc.terminate()
+            for proc in alive:
+                proc.join(0.1)
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
