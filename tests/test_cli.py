@@ -158,7 +158,7 @@ CASES = {
     # 2: usage
     "no-command": ([], 2, ["the following arguments are required: COMMAND"], [], False),
     "unknown-option": (["detect", "street.jpg", "--bogus"], 2, ["unrecognized arguments: --bogus"], [], False),
-    "missing-argument": (["detect"], 2, ["the following arguments are required: input", "vehicle-detection detect --help"], [], False),
+    "missing-argument": (["detect"], 2, ["the following arguments are required: INPUT", "vehicle-detection detect --help"], [], False),
     "bad-number": (["train", "--C", "-1"], 2, ["argument --C: expected a finite number > 0, got '-1'"], [], False),
     "bad-jobs": (["sweep", "--jobs", "0"], 2, ["argument --jobs: expected a whole number >= 1, got '0'"], [], False),
     # 3: bad input

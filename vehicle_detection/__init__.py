@@ -34,6 +34,9 @@ _API = {
     "Tracker": "tracker",
     "TrackerConfig": "tracker",
     "process_video": "pipeline",
+    "detect_many": "batch",
+    "InputResult": "batch",
+    "MoviepyAdapter": "live",
     # models and training
     "VehicleClassifier": "classifier",
     "load_model": "classifier",
@@ -56,6 +59,10 @@ _API = {
     "VideoWriter": "video",
     "read_boxes_csv": "tables",
     "write_boxes_csv": "tables",
+    "write_mot": "formats",
+    "write_coco": "formats",
+    "write_parquet": "formats",
+    "read_parquet": "formats",
     "draw_boxes": "drawing",
     "draw_detections": "drawing",
     # evaluation
@@ -102,4 +109,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .tables import read_boxes_csv, write_boxes_csv
     from .tracking_metrics import tracking_scores
     from .pipeline import process_video
+    from .batch import InputResult, detect_many
+    from .formats import read_parquet, write_coco, write_mot, write_parquet
+    from .live import MoviepyAdapter
     from .video import VideoWriter, probe_video, read_frames

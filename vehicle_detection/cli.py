@@ -6,7 +6,7 @@ exit non-zero; ``--debug`` prints the traceback before that line (the exit code 
 
 Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command line;
 3 bad input file; 4 bad or mismatched model file; 5 output refused or not writable;
-6 download failed; 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
+6 download failed; 7 some inputs of a batch failed (each named on stderr); 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
 
 A closed standard output (``vehicle-detection ... | head -1``) does not stop a run: the rest of
 the report is discarded, the outputs are written, and the exit status is the run's own.
@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="vehicle-detection",
         description="Find and track vehicles in dashcam images and video (HOG + linear SVM).",
-        epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 bad input, 4 bad model, 5 output refused, 6 download failed, 130 interrupted.",
+        epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 bad input, 4 bad model, 5 output refused, 6 download failed, 7 some inputs of a batch failed, 130 interrupted.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -154,10 +154,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the table as JSON (one row per line)")
     _add_common(p)
 
-    p = sub.add_parser("detect", help="detect vehicles in an image, a folder of images, or a video")
-    p.add_argument("input", help="image, folder of images, or video")
-    p.add_argument("--out", default=None, help="annotated output (default: next to the input, *_detected)")
-    p.add_argument("--boxes", default=None, help="CSV of boxes (default: next to the input, *_boxes.csv)")
+    p = sub.add_parser(
+        "detect", help="detect vehicles in images, folders of images, and videos",
+        description="Detect and track vehicles. One INPUT (an image, a folder of images or a video) writes its "
+        "outputs next to it (or --out, --boxes). Several inputs, globs, folders of videos, or any of the batch "
+        "options (--out-dir, --jobs, --skip-existing, --no-video, --start/--end/--frames, --format, --table, "
+        "--scheduler) run a batch: each input is processed on its own, a failing one is reported by name and the "
+        "others go on; the exit status is 7 when some failed (or the input's own code with one input).",
+    )
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="image, folder of images or videos, video, or glob pattern")
+    p.add_argument("--out", default=None, help="annotated output of a single input (default: next to the input, *_detected)")
+    p.add_argument("--boxes", default=None, help="CSV of boxes of a single input (default: next to the input, *_boxes.csv)")
+    b = p.add_argument_group("batches")
+    b.add_argument("--out-dir", default=None, metavar="DIR", help="write every input's outputs into DIR (default names)")
+    b.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
+                   help="process N inputs at once in N processes, sharing the cores between them (default %(default)s)")
+    b.add_argument("--skip-existing", action="store_true", help="skip an input whose outputs all exist (rewrite nothing)")
+    b.add_argument("--no-video", action="store_true", help="write the tables only: no annotated video or images")
+    b.add_argument("--start", type=int, default=None, metavar="A", help="first decoded frame (default 0)")
+    b.add_argument("--end", type=int, default=None, metavar="B", help="stop before this decoded frame (default: the end)")
+    b.add_argument("--frames", default=None, metavar="A-B", help="decoded frames A to B inclusive (instead of --start/--end)")
+    b.add_argument("--format", default="csv", metavar="FMT[,FMT]",
+                   help="tables per input: csv (default), parquet (needs pyarrow), mot (MOTChallenge text), coco (COCO "
+                   "JSON, images only); comma-separated for several")
+    b.add_argument("--table", default=None, metavar="ALL.parquet", help="also one Parquet table of all inputs, with a video column")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run one task per input on a dask.distributed cluster (needs vehicle-detection[distributed])")
+    b.add_argument("--chunk-frames", type=_positive_int, default=None, metavar="N",
+                   help="with --scheduler and --no-video: split each video into chunks of N frames (the tracker continues across)")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
     p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
                    help="where the road meets the horizon, as a fraction of the frame height from the top "
@@ -401,7 +425,95 @@ def _default_outputs(inp: Path, kind: str):
     return inp.with_name(f"{inp.name}_detected"), inp.with_name(f"{inp.name}_detected") / "boxes.csv"
 
 
+#: Exit status of a batch in which some inputs failed (each is reported on stderr).
+SOME_FAILED = 7
+
+_BATCH_OPTIONS = ("out_dir", "skip_existing", "no_video", "start", "end", "frames", "table", "scheduler", "chunk_frames")
+
+
+def _is_batch(args) -> bool:
+    if len(args.inputs) > 1 or args.jobs > 1 or args.format != "csv":
+        return True
+    if any(getattr(args, name) not in (None, False) for name in _BATCH_OPTIONS):
+        return True
+    import glob
+
+    from .batch import VIDEO_EXTENSIONS
+
+    inp = Path(args.inputs[0])
+    if not inp.exists():
+        return glob.has_magic(str(inp))
+    return inp.is_dir() and any(e.suffix.lower() in VIDEO_EXTENSIONS and e.is_file() for e in inp.iterdir())
+
+
+def _detect_range(args) -> tuple[int, int | None] | None:
+    if args.frames is not None:
+        if args.start is not None or args.end is not None:
+            raise UsageError("give --frames A-B or --start/--end, not both")
+        lo, sep, hi = args.frames.partition("-")
+        try:
+            a, b = int(lo), int(hi)
+        except ValueError:
+            raise UsageError(f"--frames: expected A-B (inclusive decoded frame indexes), got {args.frames!r}") from None
+        if not sep or a < 0 or b < a:
+            raise UsageError(f"--frames: expected A-B with 0 <= A <= B, got {args.frames!r}")
+        return a, b + 1
+    if args.start is None and args.end is None:
+        return None
+    a = 0 if args.start is None else args.start
+    if a < 0 or (args.end is not None and args.end <= a):
+        raise UsageError(f"--start {a} --end {args.end}: expected 0 <= start < end")
+    return a, args.end
+
+
+def _cmd_detect_many(args) -> int:
+    from .batch import detect_many
+
+    if args.out or args.boxes:
+        raise UsageError("--out and --boxes name the outputs of one input; in a batch use --out-dir (default names)")
+    formats = [f.strip() for f in args.format.split(",") if f.strip()]
+    if args.table is not None and Path(args.table).suffix.lower() != ".parquet":
+        raise UsageError(f"--table {args.table}: the table of all inputs is a Parquet file (.parquet)")
+    if "parquet" in formats or args.table is not None:
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise UsageError('--format parquet and --table need pyarrow: pip install "vehicle-detection[parquet]"') from None
+    t = time.perf_counter()
+
+    def report(r) -> None:
+        if r.error is not None:
+            print(f"vehicle-detection: error: {r.error}", file=sys.stderr, flush=True)
+        elif r.skipped:
+            print(f"{r.path}: skipped, outputs complete", flush=True)
+        else:
+            print(f"{r.path}: {r.n_boxes} boxes in {r.n_frames} frames; wrote {', '.join(map(str, r.outputs))} ({r.seconds:.1f} s)", flush=True)
+
+    results = detect_many(
+        args.inputs, out_dir=args.out_dir, jobs=args.jobs, skip_existing=args.skip_existing, video=not args.no_video,
+        frames=_detect_range(args), model=args.model, horizon=args.horizon, overwrite=args.overwrite, formats=formats,
+        table=args.table, scheduler=args.scheduler, chunk_frames=args.chunk_frames, preset=args.preset, crf=args.crf,
+        progress=not args.no_progress, on_result=report,
+    )
+    failed = [r for r in results if not r.ok]
+    done = sum(1 for r in results if r.ok and not r.skipped)
+    frames = sum(r.n_frames for r in results if r.ok and not r.skipped)
+    secs = time.perf_counter() - t
+    print(f"{done} done, {sum(r.skipped for r in results)} skipped, {len(failed)} failed; {frames} frames in {secs:.1f} s "
+          f"({frames / secs if secs > 0 else 0:.1f} frames/s)" + (f"; table {args.table}" if args.table else ""))
+    if not failed:
+        return 0
+    return failed[0].exit_code if len(results) == 1 else SOME_FAILED
+
+
 def _cmd_detect(args) -> int:
+    if _is_batch(args):
+        return _cmd_detect_many(args)
+    args.input = args.inputs[0]
+    return _cmd_detect_one(args)
+
+
+def _cmd_detect_one(args) -> int:
     from ._files import check_output_path, output_batch
     from .detections import Detections
     from .drawing import draw_detections
@@ -464,7 +576,8 @@ def _cmd_detect(args) -> int:
                 write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs)
                 found.append(det)
                 print(f"{f}: {len(det)} vehicles -> {o}")  # progress; o appears at the end
-            write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs)
+            names = [f.name for f, det in zip(files, found) for _ in range(len(det))] if kind == "folder" else None
+            write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs, files=names)
             report = [f"boxes: {boxes}"]
     for line in report:
         print(line)

@@ -259,3 +259,20 @@ class Detections:
             track_id=None if np.all(ids == -1) else ids,
             frame=arr[:, 0].astype(np.float64),
         )
+
+    # --- other libraries -------------------------------------------------------------------------
+    def to_supervision(self):
+        """This table as a ``supervision.Detections`` (needs ``pip install "vehicle-detection[supervision]"``).
+
+        See :func:`vehicle_detection.formats.to_supervision`.
+        """
+        from .formats import to_supervision
+
+        return to_supervision(self)
+
+    @classmethod
+    def from_supervision(cls, sv_detections, frame: int | None = None) -> Detections:
+        """A table from a ``supervision.Detections`` (see :func:`vehicle_detection.formats.from_supervision`)."""
+        from .formats import from_supervision
+
+        return from_supervision(sv_detections, frame)

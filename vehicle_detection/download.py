@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
-from tqdm import tqdm
+from tqdm.auto import tqdm
 
 from .errors import DownloadError, InputError, OutputError
 

@@ -22,6 +22,15 @@ from .video import VideoWriter, probe_video, read_frames
 __all__ = ["process_video"]
 
 
+def _in_notebook() -> bool:
+    """True inside a Jupyter kernel, where ``tqdm.auto`` draws a widget (stderr is no terminal there)."""
+    shell = sys.modules.get("IPython")
+    try:
+        return shell is not None and type(shell.get_ipython()).__name__ == "ZMQInteractiveShell"
+    except Exception:
+        return False
+
+
 def process_video(
     path: str | os.PathLike,
     output: str | os.PathLike | None = None,
@@ -33,6 +42,9 @@ def process_video(
     max_frames: int | None = None,
     crf: int = 23,
     preset: str = "ultrafast",
+    start: int = 0,
+    end: int | None = None,
+    workers: int = 2,
 ):
     """Detect and track vehicles through a video; write the annotated video and the boxes.
 
@@ -56,10 +68,15 @@ def process_video(
     progress : bool
         Show a progress bar on stderr.
     max_frames : int, optional
-        Stop after this many frames.
+        Stop after this many frames (counted from ``start``).
     crf, preset : int, str
         x264 quality (lower is better) and speed preset. ``ultrafast`` leaves the most CPU to
         the detector (files about twice the size of ``veryfast`` at the same ``crf``).
+    start, end : int, optional
+        Only the decoded frames ``start <= index < end`` (default: all). The frames before
+        ``start`` are decoded and dropped; ``frame`` in the result stays the decoded index.
+    workers : int
+        Frames searched at once (threads; see :meth:`Detector.track_frames`).
 
     Returns
     -------
@@ -84,8 +101,21 @@ def process_video(
         raise OutputError(f"{output}: the video and the boxes CSV cannot be the same file")
     info = probe_video(path)
     check_frame_shape(info.height, info.width, str(path))  # bounded search memory, before any frame
-    total = info.n_frames if max_frames is None else min(max_frames, info.n_frames or max_frames)
+    if start < 0 or (end is not None and end < start):
+        raise ValueError(f"start ({start}) and end ({end}) must satisfy 0 <= start <= end")
+    stop = end
+    if max_frames is not None:
+        stop = start + max_frames if stop is None else min(stop, start + max_frames)
+    total = info.n_frames
+    if total is not None:
+        total = max(0, min(total, stop if stop is not None else total) - start)
+    elif stop is not None:
+        total = stop - start
     tracker = detector.new_tracker()
+    if start:
+        from .tracker import Tracker, TrackerState
+
+        tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))  # frames keep their decoded index
     detections = []
     frames = read_frames(path)
     csv_written = False
@@ -97,12 +127,12 @@ def process_video(
                     VideoWriter(output, info.fps, info.size, overwrite=overwrite, inputs=[path], crf=crf, preset=preset)
                 )
             bar = None
-            if progress and sys.stderr.isatty():
-                from tqdm import tqdm
+            if progress and (sys.stderr.isatty() or _in_notebook()):
+                from tqdm.auto import tqdm
 
                 bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
-            source = frames if max_frames is None else itertools.islice(frames, max_frames)
-            for frame, found in detector.track_frames(source, tracker):
+            source = frames if (start == 0 and stop is None) else itertools.islice(frames, start, stop)
+            for frame, found in detector.track_frames(source, tracker, workers=workers):
                 detections.append(found)
                 if writer is not None:
                     writer.write(draw_detections(frame, found))

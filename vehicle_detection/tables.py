@@ -9,6 +9,12 @@ The CSV has the header ``frame,x1,y1,x2,y2,track_id,score`` and one row per box:
 
 Frames without detections have no rows. In memory a file is a
 :class:`~vehicle_detection.detections.Detections`.
+
+The CSV of a folder of images has one more column, ``file``: the image's file name (quoted as
+in RFC 4180 when it holds a comma, a quote or a line break), and ``frame`` is the image's
+position in sorted order (``frame,x1,y1,x2,y2,track_id,score,file``). The CSV of a video or of
+one image has no ``file`` column. :func:`read_boxes_csv` reads both; the names land in
+``data["file"]``.
 """
 
 from __future__ import annotations
@@ -25,9 +31,10 @@ from .detections import Detections
 from .errors import InputError
 from .geometry import MAX_COORD
 
-__all__ = ["BOXES_CSV_HEADER", "write_boxes_csv", "read_boxes_csv"]
+__all__ = ["BOXES_CSV_HEADER", "FILES_CSV_HEADER", "write_boxes_csv", "read_boxes_csv"]
 
 BOXES_CSV_HEADER = "frame,x1,y1,x2,y2,track_id,score"
+FILES_CSV_HEADER = BOXES_CSV_HEADER + ",file"
 _COLUMNS = tuple(BOXES_CSV_HEADER.split(","))
 _INT = re.compile(r"-?[0-9]+", re.ASCII)
 _FLOAT = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?", re.ASCII)
@@ -44,6 +51,7 @@ def write_boxes_csv(
     *,
     overwrite: bool = False,
     inputs: Iterable[str | os.PathLike] = (),
+    files: Iterable[str] | None = None,
 ) -> Path:
     """Write detection boxes to a CSV file, atomically.
 
@@ -57,6 +65,8 @@ def write_boxes_csv(
         Replace an existing file at ``path``.
     inputs : iterable of path-like
         Files the run reads; ``path`` may never be one of them.
+    files : iterable of str, optional
+        One file name per row (images of a folder): adds the ``file`` column.
 
     Returns
     -------
@@ -69,13 +79,23 @@ def write_boxes_csv(
         If ``path`` exists (without ``overwrite``), is an input or a folder, or cannot be written.
         Nothing is left under ``path`` on failure.
     """
-    lines = [BOXES_CSV_HEADER]
-    for frame, x1, y1, x2, y2, track_id, score in detections.rows():
-        lines.append(f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}")
+    names = None if files is None else [str(f) for f in files]
+    if names is not None and len(names) != len(detections):
+        raise ValueError(f"files: one name per row ({len(detections)}), got {len(names)}")
+    lines = [BOXES_CSV_HEADER if names is None else FILES_CSV_HEADER]
+    for i, (frame, x1, y1, x2, y2, track_id, score) in enumerate(detections.rows()):
+        row = f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}"
+        lines.append(row if names is None else f"{row},{_quote(names[i])}")
     text = "\n".join(lines) + "\n"
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")
     return Path(path)
+
+
+def _quote(text: str) -> str:
+    if any(c in text for c in ',"\r\n'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 def _parse_line(line: str, lineno: int, path: Path) -> tuple[int, int, int, int, int, int, float]:
@@ -139,6 +159,8 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
         lines.pop()
     if not lines:
         raise InputError(f"{path}: line 1: empty file; expected the header {BOXES_CSV_HEADER}")
+    if lines[0] == FILES_CSV_HEADER:
+        return _read_files_csv(path, lines)
     if lines[0] != BOXES_CSV_HEADER:
         raise InputError(f"{path}: line 1: header is {lines[0]!r}; expected {BOXES_CSV_HEADER!r}")
     rows = []
@@ -147,3 +169,19 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
             raise InputError(f"{path}: line {lineno}: blank line inside the data")
         rows.append(_parse_line(line, lineno, path))
     return Detections.from_rows(rows)
+
+
+def _read_files_csv(path: Path, lines: list[str]) -> Detections:
+    """The CSV of a folder of images: the last column names each row's image file."""
+    import csv
+
+    rows, names = [], []
+    for lineno, fields in enumerate(csv.reader(lines[1:]), start=2):
+        if not fields:
+            raise InputError(f"{path}: line {lineno}: blank line inside the data")
+        if len(fields) != len(_COLUMNS) + 1:
+            raise InputError(f"{path}: line {lineno}: expected {len(_COLUMNS) + 1} fields ({FILES_CSV_HEADER}), got {len(fields)}")
+        rows.append(_parse_line(",".join(fields[:-1]), lineno, path))
+        names.append(fields[-1])
+    table = Detections.from_rows(rows)
+    return table.replace(data={"file": np.array(names, dtype=str)}) if rows else table

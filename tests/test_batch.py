@@ -1,0 +1,365 @@
+"""Many inputs: ``detect INPUT...`` batches, --jobs, --skip-existing, dask, table formats, moviepy.
+
+The batch runs go through ``main([...])`` in this process (the --jobs workers are real spawned
+processes); the dask tests use an in-process ``LocalCluster``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vehicle_detection.cli import SOME_FAILED, main
+from vehicle_detection.tables import BOXES_CSV_HEADER, FILES_CSV_HEADER, read_boxes_csv
+
+REPO = Path(__file__).resolve().parents[1]
+TEST_VIDEO = REPO / "test_video.mp4"
+TEST_IMAGES = REPO / "test_images"
+
+pytestmark = pytest.mark.skipif(
+    not (TEST_VIDEO.is_file() and (TEST_IMAGES / "test1.jpg").is_file()), reason="test_video.mp4 or test_images/ not in the checkout"
+)
+
+
+def snapshot(folder: Path) -> dict[str, tuple[int, int, bytes]]:
+    return {p.name: (p.stat().st_ino, p.stat().st_mtime_ns, p.read_bytes()) for p in sorted(folder.iterdir())}
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory) -> Path:
+    """Three copies of test_video.mp4 in one folder."""
+    d = tmp_path_factory.mktemp("videos")
+    for name in ("a.mp4", "b.mp4", "c.mp4"):
+        shutil.copyfile(TEST_VIDEO, d / name)
+    return d
+
+
+@pytest.fixture(scope="module")
+def single_csv(tmp_path_factory) -> bytes:
+    """The boxes CSV of a single run with --no-video."""
+    out = tmp_path_factory.mktemp("single")
+    assert main(["detect", str(TEST_VIDEO), "--no-video", "--out-dir", str(out), "--no-progress"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["test_video_boxes.csv"]
+    return (out / "test_video_boxes.csv").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed", reason="dask.distributed not installed (pip install -e '.[distributed]')")
+    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as c:
+        with distributed.Client(c) as client:
+            yield c, client
+
+
+def test_jobs_2_gives_the_single_run_csv_and_skip_existing_rewrites_nothing(videos, single_csv, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["detect", str(videos), "--out-dir", str(out), "--jobs", "2", "--no-video", "--no-progress"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["a_boxes.csv", "b_boxes.csv", "c_boxes.csv"]
+    for name in ("a", "b", "c"):
+        assert (out / f"{name}_boxes.csv").read_bytes() == single_csv
+    assert "3 done, 0 skipped, 0 failed" in capsys.readouterr().out
+    before = snapshot(out)
+    assert main(["detect", str(videos), "--out-dir", str(out), "--jobs", "2", "--no-video", "--skip-existing"]) == 0
+    assert snapshot(out) == before  # same inodes, same mtimes, same bytes
+    assert "0 done, 3 skipped, 0 failed" in capsys.readouterr().out
+    # Without --skip-existing the outputs are refused (exit 7: every input failed, each named).
+    assert main(["detect", str(videos), "--out-dir", str(out), "--no-video"]) == SOME_FAILED
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 3 and all("output exists" in line for line in err)
+    assert snapshot(out) == before
+
+
+def test_single_run_with_video_gives_the_same_boxes(single_csv, tmp_path):
+    clip = tmp_path / "test_video.mp4"
+    shutil.copyfile(TEST_VIDEO, clip)
+    assert main(["detect", str(clip), "--no-progress"]) == 0  # the single-input path, with video
+    assert (tmp_path / "test_video_boxes.csv").read_bytes() == single_csv
+
+
+def test_a_bad_input_is_named_and_the_others_go_on(videos, tmp_path, capsys):
+    bad = tmp_path / "broken.mp4"
+    bad.write_bytes(b"not a video")
+    out = tmp_path / "out"
+    code = main(["detect", str(videos / "a.mp4"), str(bad), str(tmp_path / "missing.mp4"), "--out-dir", str(out), "--no-video"])
+    assert code == SOME_FAILED
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2
+    assert err[0].startswith(f"vehicle-detection: error: {bad}: ") or err[1].startswith(f"vehicle-detection: error: {bad}: ")
+    assert any(str(tmp_path / "missing.mp4") in line for line in err)
+    assert sorted(p.name for p in out.iterdir()) == ["a_boxes.csv"]
+    # One input: its own exit code.
+    assert main(["detect", str(bad), "--out-dir", str(out), "--no-video"]) == 3
+
+
+def test_frame_range_keeps_decoded_indexes(tmp_path):
+    import vehicle_detection as vd
+
+    assert main(["detect", str(TEST_VIDEO), "--frames", "5-20", "--no-video", "--out-dir", str(tmp_path)]) == 0
+    table = read_boxes_csv(tmp_path / "test_video_boxes.csv")
+    assert table.frame.min() >= 5 and table.frame.max() <= 20 and 5 in table.frame
+    ref = vd.process_video(TEST_VIDEO, None, progress=False, start=5, end=21)
+    assert table == ref.replace(score=np.round(ref.score, 4))  # the CSV keeps 4 decimals
+    assert main(["detect", str(TEST_VIDEO), "--start", "5", "--end", "21", "--no-video", "--out-dir", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "b" / "test_video_boxes.csv").read_bytes() == (tmp_path / "test_video_boxes.csv").read_bytes()
+
+
+def test_detect_many_python(videos, single_csv, tmp_path):
+    import vehicle_detection as vd
+
+    results = vd.detect_many([videos / "b.mp4", str(videos / "a.*")], out_dir=tmp_path, video=False)
+    assert [r.path.name for r in results] == ["b.mp4", "a.mp4"]
+    assert all(r.ok and r.n_boxes == 76 and r.n_frames == 38 and not r.skipped for r in results)
+    assert results[0].outputs == (tmp_path / "b_boxes.csv",)
+    assert (tmp_path / "b_boxes.csv").read_bytes() == single_csv
+    again = vd.detect_many(videos / "b.mp4", out_dir=tmp_path, video=False, skip_existing=True)
+    assert again[0].skipped and again[0].error is None
+
+
+def test_image_folder_csv_names_each_file(tmp_path):
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for name in ("test1.jpg", "test3.jpg"):
+        shutil.copyfile(TEST_IMAGES / name, shots / name)
+    out = tmp_path / "out"
+    assert main(["detect", str(shots), "--out-dir", str(out), "--format", "csv,coco"]) == 0
+    assert sorted(p.name for p in (out / "shots_detected").iterdir()) == ["boxes.csv", "test1.jpg", "test3.jpg"]
+    lines = (out / "shots_detected" / "boxes.csv").read_text().splitlines()
+    assert lines[0] == FILES_CSV_HEADER == BOXES_CSV_HEADER + ",file"
+    table = read_boxes_csv(out / "shots_detected" / "boxes.csv")
+    assert [n for n in table.data["file"]] == [["test1.jpg", "test3.jpg"][f] for f in table.frame]
+    # COCO detection JSON, read back with json and checked against the schema.
+    doc = json.loads((out / "shots_coco.json").read_text())
+    assert [i["file_name"] for i in doc["images"]] == ["test1.jpg", "test3.jpg"]
+    assert all(i["width"] == 1280 and i["height"] == 720 for i in doc["images"])
+    assert doc["categories"] == [{"id": 1, "name": "car", "supercategory": "vehicle"}]
+    anns = doc["annotations"]
+    assert len(anns) == len(table) > 0 and len({a["id"] for a in anns}) == len(anns)
+    for a, (frame, x1, y1, x2, y2, _, score) in zip(anns, table.rows()):
+        assert set(a) >= {"id", "image_id", "category_id", "bbox", "area", "score", "iscrowd"}
+        assert a["image_id"] == frame + 1 and a["bbox"] == [x1, y1, x2 - x1, y2 - y1] and a["area"] == (x2 - x1) * (y2 - y1)
+        assert a["score"] == pytest.approx(score, abs=1e-4)
+
+
+def test_mot_export_reads_back_with_motmetrics(tmp_path):
+    mmio = pytest.importorskip("motmetrics.io")
+    assert main(["detect", str(TEST_VIDEO), "--no-video", "--out-dir", str(tmp_path), "--format", "csv,mot"]) == 0
+    table = read_boxes_csv(tmp_path / "test_video_boxes.csv")
+    df = mmio.loadtxt(str(tmp_path / "test_video_mot.txt"), fmt="mot15-2D", min_confidence=-1)
+    assert len(df) == len(table) > 0
+    got = sorted((int(f), int(i), float(r.X), float(r.Y), float(r.Width), float(r.Height)) for (f, i), r in df.iterrows())
+    want = sorted((f + 1, t, x1, y1, x2 - x1, y2 - y1) for f, x1, y1, x2, y2, t, _ in table.rows())
+    assert got == want
+
+
+def test_parquet_per_input_and_one_table_for_the_batch(videos, single_csv, tmp_path):
+    pytest.importorskip("pyarrow")
+    from vehicle_detection.formats import read_parquet
+
+    out = tmp_path / "out"
+    both = str(tmp_path / "all.parquet")
+    args = ["detect", str(videos / "a.mp4"), str(videos / "b.mp4"), "--no-video", "--out-dir", str(out), "--format", "parquet", "--table", both]
+    assert main(args) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["a_boxes.parquet", "b_boxes.parquet"]
+    ref = read_boxes_csv_bytes(single_csv, tmp_path)
+    tables = read_parquet(both)
+    assert list(tables) == ["a.mp4", "b.mp4"]
+    assert all(t.replace(score=np.round(t.score, 4)) == ref for t in tables.values())  # full precision in Parquet
+    assert read_parquet(out / "a_boxes.parquet")["a.mp4"] == tables["a.mp4"]
+
+
+def read_boxes_csv_bytes(data: bytes, tmp_path: Path):
+    p = tmp_path / "ref.csv"
+    p.write_bytes(data)
+    return read_boxes_csv(p)
+
+
+def test_supervision_round_trip():
+    sv = pytest.importorskip("supervision")
+    from vehicle_detection.detections import Detections
+
+    d = Detections([[10, 20, 74, 84], [100, 20, 164, 84]], score=[0.5, 2.0], track_id=[3, 7], frame=[4, 5])
+    s = d.to_supervision()
+    assert isinstance(s, sv.Detections) and len(s) == 2
+    assert s.xyxy.tolist() == d.xyxy.tolist() and s.tracker_id.tolist() == [3, 7] and s.confidence.tolist() == [0.5, 2.0]
+    assert Detections.from_supervision(s) == d
+    untracked = Detections([[1, 2, 30, 40]])
+    assert Detections.from_supervision(untracked.to_supervision()) == untracked
+
+
+# --- dask -----------------------------------------------------------------------------------------
+
+
+def test_scheduler_gives_identical_csvs(cluster, videos, single_csv, tmp_path):
+    c, _ = cluster
+    out = tmp_path / "out"
+    assert main(["detect", str(videos), "--out-dir", str(out), "--no-video", "--scheduler", c.scheduler_address]) == 0
+    for name in ("a", "b", "c"):
+        assert (out / f"{name}_boxes.csv").read_bytes() == single_csv
+    # Chunks of a video, the tracker state passed from chunk to chunk: the same CSV.
+    out2 = tmp_path / "chunks"
+    assert main(["detect", str(videos / "a.mp4"), "--out-dir", str(out2), "--no-video", "--scheduler", c.scheduler_address,
+                 "--chunk-frames", "5"]) == 0
+    assert (out2 / "a_boxes.csv").read_bytes() == single_csv
+
+
+def test_chunks_continue_the_tracker_and_its_back_fill(cluster):
+    import vehicle_detection as vd
+    from vehicle_detection.batch import detect_chunked, join_chunks, track_chunk
+
+    _, client = cluster
+    ref = vd.process_video(TEST_VIDEO, None, progress=False)
+    lag = vd.Detector().config.tracker.min_hits - 1
+    assert lag >= 1
+    whole, _ = track_chunk(TEST_VIDEO, 0, None)
+    assert join_chunks(whole, lag) == ref
+    # Put a chunk border between a track's confirmation and the earlier frames it back-fills,
+    # so that the test means something: the back-fill lands in the chunk before.
+    fills = [i for i, (_, _, fill) in enumerate(whole) if len(fill) and fill.frame.min() < i]
+    assert fills
+    border = fills[0]
+    bounds = sorted({0, border, *range(border + 4, 38, 4)}) + [38]
+    steps, state = [], None
+    for a, b in zip(bounds, bounds[1:]):
+        part, state = track_chunk(TEST_VIDEO, a, b, state)
+        steps += part
+    assert state.frame_index == 38
+    assert [s[0] for s in steps] == list(range(38))
+    assert join_chunks(steps, lag) == ref
+    assert detect_chunked(TEST_VIDEO, 7, client=client) == ref
+    assert detect_chunked(TEST_VIDEO, 6, client=client, start=3, end=29) == vd.process_video(TEST_VIDEO, None, progress=False, start=3, end=29)
+    with pytest.raises(ValueError, match="continues at frame"):
+        track_chunk(TEST_VIDEO, 10, 15, state)
+
+
+def test_detect_many_with_a_client(cluster, videos, single_csv, tmp_path):
+    import vehicle_detection as vd
+
+    _, client = cluster
+    results = vd.detect_many(videos, out_dir=tmp_path, video=False, client=client)
+    assert [r.path.name for r in results] == ["a.mp4", "b.mp4", "c.mp4"] and all(r.ok for r in results)
+    assert all((tmp_path / f"{n}_boxes.csv").read_bytes() == single_csv for n in "abc")
+
+
+# --- moviepy ----------------------------------------------------------------------------------------
+
+
+class FakeClip:
+    """What MoviepyAdapter needs of a moviepy 2 clip: ``image_transform`` (which, like moviepy's,
+    reads frame 0 once to learn the size) and ``iter_frames``."""
+
+    def __init__(self, frames, func=None):
+        self.frames, self.func = frames, func
+        if func is not None:
+            self.size = self.get_frame(0).shape[1::-1]  # moviepy's extra call on frame 0
+
+    def get_frame(self, t):
+        frame = self.frames[int(t)]
+        return frame if self.func is None else self.func(frame)
+
+    def image_transform(self, func):
+        return FakeClip(self.frames, func)
+
+    def iter_frames(self):
+        for t in range(len(self.frames)):
+            yield self.get_frame(t)
+
+
+@pytest.fixture(scope="module")
+def clip_frames():
+    from itertools import islice
+
+    from vehicle_detection.video import read_frames
+
+    frames = read_frames(TEST_VIDEO)
+    try:
+        return list(islice(frames, 12))
+    finally:
+        frames.close()
+
+
+def test_moviepy_adapter_with_a_fake_clip(clip_frames):
+    import vehicle_detection as vd
+    from vehicle_detection.drawing import draw_detections
+
+    detector = vd.Detector()
+    adapter = vd.MoviepyAdapter(detector)
+    out = list(FakeClip(clip_frames).image_transform(adapter).iter_frames())
+    assert adapter.frames_processed == len(clip_frames)  # frame 0 asked twice, processed once
+    tracker = detector.new_tracker()
+    live = [detector.step(f, tracker) for f in clip_frames]
+    assert adapter.detections == vd.Detections.concatenate(live)
+    assert all(np.array_equal(o, draw_detections(f, d)) for o, f, d in zip(out, clip_frames, live))
+    assert len(adapter.detections) > 0
+    with pytest.raises(ValueError, match="frames must come in order"):
+        list(FakeClip(clip_frames).image_transform(adapter).iter_frames())  # a second pass
+    adapter.reset()  # clip.transform(adapter.transform): times checked instead of contents
+
+    def get(t):
+        return clip_frames[round(t * 25)]
+
+    first = adapter.transform(get, 0.0)
+    assert adapter.transform(get, 0.0) is first and adapter.frames_processed == 1
+    adapter.transform(get, 0.04)
+    assert adapter.frames_processed == 2
+    with pytest.raises(ValueError, match="frames must come in order"):
+        adapter.transform(get, 0.0)
+
+
+def test_moviepy_adapter_with_moviepy(tmp_path):
+    # moviepy 2.2 pins Pillow < 12, so it is not in the test extra; .ci/run runs this test in a
+    # separate environment with the [moviepy] extra.
+    moviepy = pytest.importorskip("moviepy", reason="moviepy 2 not installed (pip install -e '.[moviepy]')")
+    import vehicle_detection as vd
+    from vehicle_detection.video import read_frames
+
+    clip = moviepy.VideoFileClip(str(TEST_VIDEO)).subclipped(0, 0.6)
+    raw = list(clip.iter_frames())
+    detector = vd.Detector()
+    adapter = vd.MoviepyAdapter(detector)
+    out = tmp_path / "out.mp4"
+    clip.image_transform(adapter).write_videofile(str(out), codec="libx264", audio=False, logger=None)
+    clip.close()
+    # moviepy's extra call on frame 0 did not advance the tracker: one step per frame, in order,
+    # the same boxes as stepping the detector live over the frames moviepy decodes.
+    assert adapter.frames_processed == len(raw) == 15
+    tracker = detector.new_tracker()
+    assert adapter.detections == vd.Detections.concatenate([detector.step(f, tracker) for f in raw])
+    assert len(adapter.detections) > 0
+    written = read_frames(out)
+    try:
+        assert sum(1 for _ in written) == len(raw)
+    finally:
+        written.close()
+    with pytest.raises(ValueError, match="frames must come in order"):
+        adapter(raw[0])  # a second pass from the start
+
+
+def test_sigterm_with_jobs_leaves_no_partial_files(videos, tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(videos), "--out-dir", str(out), "--jobs", "2", "--no-progress"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (out.is_dir() and any(p.name.endswith(".partial") for p in out.iterdir())):
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "vehicle-detection: interrupted"
+    left = sorted(p.name for p in out.iterdir()) if out.exists() else []
+    assert not [n for n in left if n.endswith(".partial")], left
+    # An input is committed whole or not at all: its video and its CSV together.
+    stems = {n.split("_")[0] for n in left}
+    assert sorted(left) == sorted(n for s in stems for n in (f"{s}_boxes.csv", f"{s}_detected.mp4"))
