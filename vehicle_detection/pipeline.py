@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ._files import check_output_path
-from .errors import OutputError
+from .errors import InputError, OutputError
 from .images import check_frame_shape
 from .video import VideoWriter, probe_video, read_frames
 
@@ -33,6 +33,10 @@ def process_video(
     max_frames: int | None = None,
     crf: int = 23,
     preset: str = "ultrafast",
+    camera=None,
+    lanes: bool = False,
+    lanes_csv: str | os.PathLike | None = None,
+    birds_eye=None,
 ):
     """Detect and track vehicles through a video; write the annotated video and the boxes.
 
@@ -60,6 +64,18 @@ def process_video(
     crf, preset : int, str
         x264 quality (lower is better) and speed preset. ``ultrafast`` leaves the most CPU to
         the detector (files about twice the size of ``veryfast`` at the same ``crf``).
+    camera : Camera, optional
+        Undistort every frame before the search (:mod:`vehicle_detection.camera`); the video
+        must have the camera's image size (else :class:`InputError`, before any frame).
+    lanes : bool
+        Find the lane in every frame (:class:`~vehicle_detection.lanes.LaneTracker`) and draw
+        it with its radius of curvature and the car's offset. Needs a bird's-eye transform.
+    lanes_csv : path-like, optional
+        CSV ``frame,curvature_m,offset_m`` (empty fields where no lane), written atomically with
+        the boxes CSV; implies ``lanes``.
+    birds_eye : BirdsEye, optional
+        The road-plane transform; default ``camera.birds_eye``. When known, every box gets
+        ``distance_m`` and ``relative_speed_mps`` in its ``data`` (NaN where unknown).
 
     Returns
     -------
@@ -72,7 +88,7 @@ def process_video(
     from .detections import Detections
     from .detector import Detector
     from .drawing import draw_detections
-    from .tables import write_boxes_csv
+    from .tables import write_boxes_csv, write_lanes_csv
 
     path = Path(path)
     detector = detector or Detector()
@@ -84,11 +100,35 @@ def process_video(
         raise OutputError(f"{output}: the video and the boxes CSV cannot be the same file")
     info = probe_video(path)
     check_frame_shape(info.height, info.width, str(path))  # bounded search memory, before any frame
+    lanes = lanes or lanes_csv is not None
+    if lanes_csv is not None:
+        check_output_path(lanes_csv, overwrite=overwrite, inputs=[path])
+        if any(o is not None and Path(o).resolve() == Path(lanes_csv).resolve() for o in (output, boxes_csv)):
+            raise OutputError(f"{lanes_csv}: the lanes CSV must be a file of its own")
+    if camera is not None:
+        camera.check_size(info.width, info.height, f"{path}: the video")
+    if birds_eye is None and camera is not None:
+        birds_eye = camera.birds_eye
+    if birds_eye is not None and tuple(birds_eye.image_size) != (info.width, info.height):
+        w, h = birds_eye.image_size
+        raise InputError(f"{path}: the video is {info.width}x{info.height}, but the bird's-eye transform is for {w}x{h} frames")
+    if lanes and birds_eye is None:
+        raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
+    lane_tracker = distances = None
+    if lanes:
+        from .lanes import LaneTracker, draw_lane
+
+        lane_tracker = LaneTracker(birds_eye)
+    if birds_eye is not None:
+        from .lanes import DistanceTracker
+
+        distances = DistanceTracker(birds_eye, info.fps or 25.0)
+    lane_rows = []
     total = info.n_frames if max_frames is None else min(max_frames, info.n_frames or max_frames)
     tracker = detector.new_tracker()
     detections = []
     frames = read_frames(path)
-    csv_written = False
+    written = []
     try:
         with ExitStack() as stack:
             writer = None
@@ -102,25 +142,39 @@ def process_video(
 
                 bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
             source = frames if max_frames is None else itertools.islice(frames, max_frames)
-            for frame, found in detector.track_frames(source, tracker):
+            if camera is not None:
+                source = map(camera.undistort, source)
+            for index, (frame, found) in enumerate(detector.track_frames(source, tracker)):
+                if distances is not None:
+                    found = distances.update(found)
                 detections.append(found)
+                lane = None
+                if lane_tracker is not None:
+                    lane = lane_tracker.step(frame)
+                    lane_rows.append((index, *((lane.radius_m, lane.offset_m) if lane else (None, None))))
                 if writer is not None:
-                    writer.write(draw_detections(frame, found))
+                    shown = draw_lane(frame, lane, birds_eye) if lane_tracker is not None else frame
+                    writer.write(draw_detections(shown, found))
                 if bar is not None:
                     bar.update()
             table = Detections.concatenate(detections)
+            if distances is not None and not len(table):  # the columns, even without boxes
+                table = table.replace(data={"distance_m": np.zeros(0), "relative_speed_mps": np.zeros(0)})
+            if lanes_csv is not None:
+                write_lanes_csv(lanes_csv, lane_rows, overwrite=overwrite, inputs=[path])
+                written.append(lanes_csv)
             if boxes_csv is not None:
                 # Written before the video is renamed into place: once the video exists under
                 # its final name, the CSV is complete too.
                 write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
-                csv_written = True
+                written.append(boxes_csv)
     except BaseException:
-        # The video failed after the CSV was renamed into place (the encoder failing to finish the
-        # file, Ctrl-C during its final flush): remove the CSV too, so that no output of a
+        # The video failed after a CSV was renamed into place (the encoder failing to finish the
+        # file, Ctrl-C during its final flush): remove the CSVs too, so that no output of a
         # failed run is left looking finished.
-        if csv_written:
+        for done in written:
             with contextlib.suppress(OSError):
-                Path(boxes_csv).unlink()
+                Path(done).unlink()
         raise
     finally:
         frames.close()

@@ -9,6 +9,14 @@ The CSV has the header ``frame,x1,y1,x2,y2,track_id,score`` and one row per box:
 
 Frames without detections have no rows. In memory a file is a
 :class:`~vehicle_detection.detections.Detections`.
+
+When the detections carry distances (``data["distance_m"]`` and ``data["relative_speed_mps"]``,
+from ``detect --lanes``), two more columns follow, ``distance_m,relative_speed_mps`` (metres and
+metres per second, 2 decimals; an empty field where unknown, read back as NaN). Without them the
+file is exactly the 7-column format above; :func:`read_boxes_csv` accepts both.
+
+The lanes CSV (:func:`write_lanes_csv`) has the header ``frame,curvature_m,offset_m``, one row
+per frame, empty fields where no lane was found.
 """
 
 from __future__ import annotations
@@ -25,9 +33,12 @@ from .detections import Detections
 from .errors import InputError
 from .geometry import MAX_COORD
 
-__all__ = ["BOXES_CSV_HEADER", "write_boxes_csv", "read_boxes_csv"]
+__all__ = ["BOXES_CSV_HEADER", "DISTANCE_COLUMNS", "LANES_CSV_HEADER", "write_boxes_csv", "read_boxes_csv", "write_lanes_csv"]
 
 BOXES_CSV_HEADER = "frame,x1,y1,x2,y2,track_id,score"
+DISTANCE_COLUMNS = ("distance_m", "relative_speed_mps")
+_EXTENDED_HEADER = BOXES_CSV_HEADER + "," + ",".join(DISTANCE_COLUMNS)
+LANES_CSV_HEADER = "frame,curvature_m,offset_m"
 _COLUMNS = tuple(BOXES_CSV_HEADER.split(","))
 _INT = re.compile(r"-?[0-9]+", re.ASCII)
 _FLOAT = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?", re.ASCII)
@@ -69,21 +80,40 @@ def write_boxes_csv(
         If ``path`` exists (without ``overwrite``), is an input or a folder, or cannot be written.
         Nothing is left under ``path`` on failure.
     """
-    lines = [BOXES_CSV_HEADER]
-    for frame, x1, y1, x2, y2, track_id, score in detections.rows():
-        lines.append(f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}")
+    extended = all(c in detections.data for c in DISTANCE_COLUMNS)
+    lines = [_EXTENDED_HEADER if extended else BOXES_CSV_HEADER]
+    extra = [np.asarray(detections.data[c], dtype=np.float64) for c in DISTANCE_COLUMNS] if extended else None
+    for i, (frame, x1, y1, x2, y2, track_id, score) in enumerate(detections.rows()):
+        line = f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}"
+        if extra is not None:
+            line += "".join("," + (f"{col[i]:.2f}" if np.isfinite(col[i]) else "") for col in extra)
+        lines.append(line)
     text = "\n".join(lines) + "\n"
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")
     return Path(path)
 
 
-def _parse_line(line: str, lineno: int, path: Path) -> tuple[int, int, int, int, int, int, float]:
+def _parse_extra(fields: list[str], lineno: int, path: Path) -> tuple[float, ...]:
+    out = []
+    for name, text in zip(DISTANCE_COLUMNS, fields):
+        if text == "":
+            out.append(float("nan"))
+        elif _FLOAT.fullmatch(text):
+            out.append(float(text))
+        else:
+            raise InputError(f"{path}: line {lineno}: {name} {text!r} is not a number (leave it empty when unknown)")
+    return tuple(out)
+
+
+def _parse_line(line: str, lineno: int, path: Path, header: str = BOXES_CSV_HEADER) -> tuple[int, int, int, int, int, int, float]:
     fields = line.split(",")
-    if len(fields) != len(_COLUMNS):
+    n_fields = header.count(",") + 1
+    if len(fields) != n_fields:
         raise InputError(
-            f"{path}: line {lineno}: expected {len(_COLUMNS)} fields ({BOXES_CSV_HEADER}), got {len(fields)}"
+            f"{path}: line {lineno}: expected {n_fields} fields ({header}), got {len(fields)}"
         )
+    fields = fields[: len(_COLUMNS)]
     ints = []
     for name, text in zip(_COLUMNS[:6], fields[:6]):
         if not _INT.fullmatch(text):
@@ -117,13 +147,15 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
     Parameters
     ----------
     path : path-like
-        CSV with the header ``frame,x1,y1,x2,y2,track_id,score`` exactly (a UTF-8 byte-order
-        mark and CRLF line ends are accepted). Blank lines are allowed only at the end.
+        CSV with the header ``frame,x1,y1,x2,y2,track_id,score`` exactly, or that header followed
+        by ``,distance_m,relative_speed_mps`` (a UTF-8 byte-order mark and CRLF line ends are
+        accepted). Blank lines are allowed only at the end.
 
     Returns
     -------
     Detections
-        The rows in file order; untracked (``track_id`` None) when every row's id is -1.
+        The rows in file order; untracked (``track_id`` None) when every row's id is -1. With
+        the distance columns, ``data`` holds them (float64, NaN for empty fields).
 
     Raises
     ------
@@ -139,11 +171,36 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
         lines.pop()
     if not lines:
         raise InputError(f"{path}: line 1: empty file; expected the header {BOXES_CSV_HEADER}")
-    if lines[0] != BOXES_CSV_HEADER:
-        raise InputError(f"{path}: line 1: header is {lines[0]!r}; expected {BOXES_CSV_HEADER!r}")
-    rows = []
+    if lines[0] not in (BOXES_CSV_HEADER, _EXTENDED_HEADER):
+        raise InputError(f"{path}: line 1: header is {lines[0]!r}; expected {BOXES_CSV_HEADER!r} (optionally followed by ,{','.join(DISTANCE_COLUMNS)})")
+    header = lines[0]
+    rows, extra = [], []
     for lineno, line in enumerate(lines[1:], start=2):
         if not line.strip():
             raise InputError(f"{path}: line {lineno}: blank line inside the data")
-        rows.append(_parse_line(line, lineno, path))
-    return Detections.from_rows(rows)
+        rows.append(_parse_line(line, lineno, path, header))
+        if header != BOXES_CSV_HEADER:
+            extra.append(_parse_extra(line.split(",")[len(_COLUMNS) :], lineno, path))
+    table = Detections.from_rows(rows)
+    if header != BOXES_CSV_HEADER:
+        cols = np.array(extra, dtype=np.float64).reshape(-1, len(DISTANCE_COLUMNS))
+        table = table.replace(data={name: cols[:, i] for i, name in enumerate(DISTANCE_COLUMNS)})
+    return table
+
+
+def write_lanes_csv(
+    path: str | os.PathLike,
+    rows: Iterable[tuple[int, float, float]],
+    *,
+    overwrite: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> Path:
+    """Write ``frame,curvature_m,offset_m`` rows atomically (NaN or None: an empty field)."""
+
+    def fmt(v, digits):
+        return f"{v:.{digits}f}" if v is not None and np.isfinite(v) else ""
+
+    lines = [LANES_CSV_HEADER] + [f"{int(f)},{fmt(c, 1)},{fmt(o, 3)}" for f, c, o in rows]
+    with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8", newline="\n")
+    return Path(path)
