@@ -10,8 +10,9 @@ The steps, all pure functions except the small stateful :class:`LaneTracker` and
    frames are averaged. The source quadrilateral is where the two lines cross the rows
    ``top_row`` (62.5 % of the height) and the bottom row; it is mapped onto a rectangle, so the
    lines come out vertical and parallel. Metres per pixel: across, 3.7 m (a US lane) over the
-   distance between the two warped lines; along, 3 m (a US lane dash) over the median length of
-   the dashes found in the warped straight frames.
+   distance between the two warped lines; along, 12 m (a US lane dash, 3 m, plus its gap, 9 m)
+   over the dash-to-dash period measured in the warped straight frames (autocorrelation of the
+   dashed line's profile; the dashes' own blurred ends would make them look longer).
 2. :func:`lane_binary`: colour (HLS saturation, bright white) OR gradient (Sobel x of lightness)
    thresholds, computed on the warped image (lines are vertical there, and it is smaller).
 3. :func:`find_lane_pixels` (sliding windows from the histogram peaks) or
@@ -57,6 +58,8 @@ __all__ = [
 
 LANE_WIDTH_M = 3.7
 DASH_LENGTH_M = 3.0
+#: A US lane dash (3 m, 10 ft) and the gap to the next (9 m, 30 ft).
+DASH_PERIOD_M = 12.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,21 +213,24 @@ def _straight_lines(rgb: np.ndarray, top_row: int) -> tuple[np.ndarray, np.ndarr
     return fits[0], fits[1]
 
 
-def _dash_length(warped_binary: np.ndarray, x: float, half_width: int = 12) -> float | None:
-    """Median length (pixels) of the dashes along column ``x`` of a warped binary image."""
+def _dash_period(warped_binary: np.ndarray, x: float, half_width: int = 12) -> float | None:
+    """Dash-to-dash period (pixels) along column ``x`` of a warped binary image, or None (a solid line).
+
+    The first clear peak of the autocorrelation of the column's on/off profile: the start of
+    one dash to the start of the next (one dash plus one gap), which the blurred far ends of the
+    dashes do not bias, unlike a dash's own length.
+    """
     lo, hi = int(max(0, x - half_width)), int(min(warped_binary.shape[1], x + half_width))
-    on = warped_binary[:, lo:hi].sum(axis=1) >= 3
-    runs, n = [], 0
-    for v in on:
-        if v:
-            n += 1
-        elif n:
-            runs.append(n)
-            n = 0
-    runs = [r for r in runs if r >= 8]  # not noise; the last run may be cut by the border
-    if len(runs) < 2:
-        return None
-    return float(np.median(runs[:-1] if on[-1] else runs))
+    on = (warped_binary[:, lo:hi].sum(axis=1) >= 3).astype(np.float64)
+    if on.mean() > 0.8 or on.mean() < 0.1:
+        return None  # solid line, or nothing
+    prof = on - on.mean()
+    ac = np.correlate(prof, prof, "full")[len(prof) - 1 :]
+    ac /= ac[0]
+    lags = np.arange(len(ac))
+    ok = (lags >= 20) & (lags <= len(prof) * 0.6)
+    peaks = [i for i in lags[ok] if ac[i] > 0.2 and ac[i] >= ac[i - 1] and ac[i] >= ac[min(i + 1, len(ac) - 1)]]
+    return float(peaks[0]) if peaks else None
 
 
 def birds_eye_from_straight(
@@ -259,16 +265,16 @@ def birds_eye_from_straight(
     dst = np.array([[xl, wh], [xl, 0], [xr, 0], [xr, wh]], float)
     xm = LANE_WIDTH_M / (xr - xl)
     provisional = BirdsEye(src, dst, (w, h), (ww, wh), xm, 1.0)
-    dashes = []
+    periods = []
     for f in frames:
         binary = lane_binary(provisional.warp(f))
         for x in (xl, xr):
-            d = _dash_length(binary, x)
+            d = _dash_period(binary, x)
             if d is not None:
-                dashes.append(d)
-    if not dashes:
+                periods.append(d)
+    if not periods:
         raise InputError("no lane dashes found in the straight-road frames; cannot derive metres per pixel along the road")
-    return BirdsEye(src, dst, (w, h), (ww, wh), xm, DASH_LENGTH_M / float(np.median(dashes)))
+    return BirdsEye(src, dst, (w, h), (ww, wh), xm, DASH_PERIOD_M / float(np.median(periods)))
 
 
 # --- lane pixels and fits ----------------------------------------------------------------------
