@@ -280,13 +280,23 @@ def birds_eye_from_straight(
 # --- lane pixels and fits ----------------------------------------------------------------------
 
 
-def find_lane_pixels(binary: np.ndarray, *, n_windows: int = 9, margin: int | None = None, min_pix: int = 30):
-    """Sliding-window search: ``(left_x, left_y, right_x, right_y)`` pixel coordinates."""
+def find_lane_pixels(
+    binary: np.ndarray, *, n_windows: int = 9, margin: int | None = None, min_pix: int = 30, expected=(0.25, 0.75), band: float = 0.15
+):
+    """Sliding-window search: ``(left_x, left_y, right_x, right_y)`` pixel coordinates.
+
+    The windows start at the column-histogram peaks of the lower half, searched within
+    ``band`` (fraction of the width) of the ``expected`` line positions (fractions of the width;
+    where :func:`birds_eye_from_straight` puts the lines), so a barrier or the next lane's line
+    is not taken for the lane's own.
+    """
     h, w = binary.shape
     margin = margin or max(8, w // 12)
     hist = binary[h // 2 :].sum(axis=0)
-    mid = w // 2
-    bases = [int(np.argmax(hist[:mid])), mid + int(np.argmax(hist[mid:]))]
+    bases = []
+    for e in expected:
+        lo, hi = int(max(0, (e - band) * w)), int(min(w, (e + band) * w))
+        bases.append(lo + int(np.argmax(hist[lo:hi])))
     ys, xs = binary.nonzero()
     win_h = h // n_windows
     picked = [[], []]
@@ -318,7 +328,7 @@ def fit_lanes(lx, ly, rx, ry, *, min_pixels: int = 50):
     return left, right
 
 
-def lane_sane(left_fit, right_fit, birds_eye: BirdsEye, *, width_m=(2.8, 4.8), max_width_change_m: float = 0.7) -> bool:
+def lane_sane(left_fit, right_fit, birds_eye: BirdsEye, *, width_m=(2.8, 5.0), max_width_change_m: float = 1.0) -> bool:
     """Both fits present, of a plausible lane width, and roughly parallel (width nearly constant)."""
     if left_fit is None or right_fit is None:
         return False
