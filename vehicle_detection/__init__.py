@@ -34,6 +34,18 @@ _API = {
     "Tracker": "tracker",
     "TrackerConfig": "tracker",
     "process_video": "pipeline",
+    # camera, lanes and distances
+    "Camera": "camera",
+    "calibrate": "camera",
+    "BirdsEye": "lanes",
+    "birds_eye_from_straight": "lanes",
+    "lane_binary": "lanes",
+    "find_lane_pixels": "lanes",
+    "fit_lanes": "lanes",
+    "Lane": "lanes",
+    "LaneTracker": "lanes",
+    "DistanceTracker": "lanes",
+    "draw_lane": "lanes",
     # models and training
     "VehicleClassifier": "classifier",
     "load_model": "classifier",
@@ -56,6 +68,7 @@ _API = {
     "VideoWriter": "video",
     "read_boxes_csv": "tables",
     "write_boxes_csv": "tables",
+    "write_lanes_csv": "tables",
     "draw_boxes": "drawing",
     "draw_detections": "drawing",
     # evaluation
@@ -86,6 +99,8 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
+    from .camera import Camera, calibrate
+    from .lanes import BirdsEye, DistanceTracker, Lane, LaneTracker, birds_eye_from_straight, draw_lane, find_lane_pixels, fit_lanes, lane_binary
     from .classifier import VehicleClassifier, load_default_model, load_model, split_indices, sweep, sweep_configs, train
     from .config import DetectorConfig
     from .data import find_duplicates, load_dataset
@@ -99,7 +114,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .mining import MiningSource, mine_negatives, write_negatives
     from .search import SearchPlan, SearchScale, search
     from .tracker import Tracker, TrackerConfig
-    from .tables import read_boxes_csv, write_boxes_csv
+    from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
     from .tracking_metrics import tracking_scores
     from .pipeline import process_video
     from .video import VideoWriter, probe_video, read_frames

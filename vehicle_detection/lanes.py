@@ -168,14 +168,17 @@ def lane_binary(rgb: np.ndarray, *, s_thresh=(170, 255), sx_thresh=(20, 100), wh
     """
     import cv2
 
-    hls = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HLS)
-    lum, sat = hls[..., 1], hls[..., 2]
-    sobel = np.abs(cv2.Sobel(lum, cv2.CV_32F, 1, 0, ksize=3))
-    sobel = (255 * sobel / max(float(sobel.max()), 1.0)).astype(np.uint8)
-    out = (sat >= s_thresh[0]) & (sat <= s_thresh[1]) & (lum > 60)
-    out |= (sobel >= sx_thresh[0]) & (sobel <= sx_thresh[1])
-    out |= np.all(rgb > white, axis=2)
-    return out.astype(np.uint8)
+    rgb = np.ascontiguousarray(rgb)
+    hls = cv2.cvtColor(rgb, cv2.COLOR_RGB2HLS)
+    lum = np.ascontiguousarray(hls[..., 1])
+    sobel = cv2.convertScaleAbs(cv2.Sobel(lum, cv2.CV_16S, 1, 0, ksize=3))  # |d/dx|, saturated at 255
+    top = float(sobel.max())
+    if top > 0:
+        sobel = cv2.convertScaleAbs(sobel, alpha=255.0 / top)  # scaled to the frame's strongest edge
+    out = cv2.inRange(hls, (0, 61, s_thresh[0]), (255, 255, s_thresh[1]))  # saturated paint, not dark
+    out |= cv2.inRange(sobel, sx_thresh[0], sx_thresh[1])
+    out |= cv2.inRange(rgb, (white + 1,) * 3, (255, 255, 255))
+    return (out > 0).view(np.uint8)
 
 
 # --- the bird's-eye transform -----------------------------------------------------------------
@@ -430,9 +433,14 @@ def draw_lane(image: np.ndarray, lane: Lane | None, birds_eye: BirdsEye, *, colo
     y = np.linspace(0, wh - 1, 24)
     pts = np.r_[np.c_[np.polyval(lane.left_fit, y), y], np.c_[np.polyval(lane.right_fit, y), y][::-1]]
     cam = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), birds_eye.Minv).reshape(-1, 2)
-    overlay = out.copy()
-    cv2.fillPoly(overlay, [np.round(cam).astype(np.int32)], color)
-    cv2.addWeighted(overlay, alpha, out, 1 - alpha, 0, dst=out)
+    poly = np.round(cam).astype(np.int32)
+    x0, y0 = np.clip(poly.min(axis=0), 0, None)
+    x1, y1 = np.minimum(poly.max(axis=0) + 1, [out.shape[1], out.shape[0]])
+    if x1 > x0 and y1 > y0:  # blend only the polygon's bounding box
+        roi = out[y0:y1, x0:x1]
+        overlay = roi.copy()
+        cv2.fillPoly(overlay, [poly - [x0, y0]], color)
+        out[y0:y1, x0:x1] = cv2.addWeighted(overlay, alpha, roi, 1 - alpha, 0)
     radius = "straight" if lane.radius_m > 10_000 else f"{lane.radius_m:,.0f} m"
     side = "right" if lane.offset_m > 0 else "left"
     for i, text in enumerate((f"radius of curvature: {radius}", f"{abs(lane.offset_m):.2f} m {side} of lane centre")):
