@@ -139,6 +139,37 @@ class Camera:
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 1, 2)
         return cv2.undistortPoints(pts, self.matrix, self.distortion, P=self.matrix).reshape(-1, 2)
 
+    def distort_points(self, points) -> np.ndarray:
+        """Pixel positions in the undistorted image -> the original (distorted) image, ``(n, 2)``."""
+        import cv2
+
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        norm = (pts - self.matrix[:2, 2]) / np.diag(self.matrix)[:2]
+        obj = np.c_[norm, np.ones(len(norm))]
+        out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.matrix, self.distortion)
+        return out.reshape(-1, 2)
+
+    def boxes_to_original(self, xyxy, samples: int = 9) -> np.ndarray:
+        """Boxes found in undistorted frames -> the boxes enclosing them in the original frames.
+
+        Each edge is sampled at ``samples`` points (a straight edge bends under distortion);
+        the result is rounded outward and clipped to the image, ``int64 (n, 4)``.
+        """
+        b = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
+        if not len(b):
+            return np.zeros((0, 4), np.int64)
+        t = np.linspace(0, 1, samples)
+        x1, y1, x2, y2 = (b[:, i : i + 1] for i in range(4))
+        xs = np.concatenate([x1 + (x2 - x1) * t, x1 + (x2 - x1) * t, np.repeat(x1, samples, 1), np.repeat(x2, samples, 1)], axis=1)
+        ys = np.concatenate([np.repeat(y1, samples, 1), np.repeat(y2, samples, 1), y1 + (y2 - y1) * t, y1 + (y2 - y1) * t], axis=1)
+        d = self.distort_points(np.c_[xs.reshape(-1), ys.reshape(-1)]).reshape(len(b), -1, 2)
+        w, h = self.image_size
+        out = np.c_[np.floor(d[..., 0].min(1)), np.floor(d[..., 1].min(1)), np.ceil(d[..., 0].max(1)), np.ceil(d[..., 1].max(1))]
+        out = np.clip(out, 0, [w, h, w, h]).astype(np.int64)
+        out[:, 2] = np.maximum(out[:, 2], out[:, 0] + 1)
+        out[:, 3] = np.maximum(out[:, 3], out[:, 1] + 1)
+        return out
+
     # --- files -------------------------------------------------------------------------------
     def to_dict(self) -> dict:
         out = {

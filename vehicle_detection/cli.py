@@ -208,7 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
                    help="where the road meets the horizon, as a fraction of the frame height from the top "
                    "(default: the model's search plan, made for the project camera: 0.56)")
-    p.add_argument("--camera", default=None, metavar="CAMERA.json", help="undistort every frame with this camera file before the search")
+    p.add_argument("--camera", default=None, metavar="CAMERA.json",
+                   help="undistort every frame with this camera file before the search (the boxes are mapped back to the "
+                   "original frames, where the labels are, before scoring)")
     p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
@@ -609,8 +611,10 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool, camera=No
         for i, lab in labels.frames.items():
             if lab.file is not None and files[i].name != lab.file:
                 raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {source} is {files[i].name}")
-        load = read_image if camera is None else (lambda f: camera.undistort(read_image(f)))
-        return Detections.concatenate(detector.detect_image(load(files[i])).replace(frame=i) for i in labels.frames), None
+        if camera is None:
+            return Detections.concatenate(detector.detect_image(read_image(files[i])).replace(frame=i) for i in labels.frames), None
+        found = Detections.concatenate(detector.detect_image(camera.undistort(read_image(files[i]))).replace(frame=i) for i in labels.frames)
+        return found.replace(xyxy=camera.boxes_to_original(found.xyxy)), None
     # Labels beyond the end of the video would silently count as missed cars: check first, by
     # decoding (the container's frame count is only an estimate for some formats).
     with closing(read_frames(source)) as frames:
@@ -622,6 +626,8 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool, camera=No
             f"{n_decoded} decoded frames (0..{n_decoded - 1}); wrong video or labels?"
         )
     table = process_video(source, None, detector=detector, progress=progress, max_frames=last, camera=camera)
+    if camera is not None:  # the labels are in the original (distorted) frames
+        table = table.replace(xyxy=camera.boxes_to_original(table.xyxy))
     return table, probe_video(source).fps
 
 
