@@ -171,10 +171,9 @@ def lane_binary(rgb: np.ndarray, *, s_thresh=(170, 255), sx_thresh=(20, 100), wh
     rgb = np.ascontiguousarray(rgb)
     hls = cv2.cvtColor(rgb, cv2.COLOR_RGB2HLS)
     lum = np.ascontiguousarray(hls[..., 1])
-    sobel = cv2.convertScaleAbs(cv2.Sobel(lum, cv2.CV_16S, 1, 0, ksize=3))  # |d/dx|, saturated at 255
-    top = float(sobel.max())
-    if top > 0:
-        sobel = cv2.convertScaleAbs(sobel, alpha=255.0 / top)  # scaled to the frame's strongest edge
+    dx = cv2.Sobel(lum, cv2.CV_16S, 1, 0, ksize=3)
+    top = max(float(-dx.min()), float(dx.max()), 1.0)
+    sobel = cv2.convertScaleAbs(dx, alpha=255.0 / top)  # |d/dx| scaled to the frame's strongest edge
     out = cv2.inRange(hls, (0, 61, s_thresh[0]), (255, 255, s_thresh[1]))  # saturated paint, not dark
     out |= cv2.inRange(sobel, sx_thresh[0], sx_thresh[1])
     out |= cv2.inRange(rgb, (white + 1,) * 3, (255, 255, 255))
