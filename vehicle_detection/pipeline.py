@@ -10,6 +10,8 @@ from __future__ import annotations
 import itertools
 import os
 import sys
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +22,33 @@ from .images import check_frame_shape
 from .video import VideoWriter, probe_video, read_frames
 
 __all__ = ["process_video"]
+
+
+def _prepared(source, helper: ThreadPoolExecutor, camera, lane_tracker, lanes_ahead: deque, ahead: int = 3):
+    """Frames undistorted (when ``camera``) in ``helper``, ``ahead`` frames in advance.
+
+    With ``lane_tracker``, the lane of each frame is found in the same (single) helper thread,
+    so in frame order; its future is appended to ``lanes_ahead`` as the frame is yielded.
+    """
+
+    def work(frame):
+        if camera is not None:
+            frame = camera.undistort(frame)
+        return frame, None if lane_tracker is None else helper.submit(lane_tracker.step, frame)
+
+    pending: deque = deque()
+    for frame in source:
+        pending.append(helper.submit(work, frame))
+        if len(pending) > ahead:
+            frame, lane = pending.popleft().result()
+            if lane is not None:
+                lanes_ahead.append(lane)
+            yield frame
+    while pending:
+        frame, lane = pending.popleft().result()
+        if lane is not None:
+            lanes_ahead.append(lane)
+        yield frame
 
 
 def process_video(
@@ -142,15 +171,19 @@ def process_video(
 
                 bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
             source = frames if max_frames is None else itertools.islice(frames, max_frames)
-            if camera is not None:
-                source = map(camera.undistort, source)
+            lanes_ahead: deque = deque()
+            if camera is not None or lane_tracker is not None:
+                # Undistortion and lane finding run in a helper thread, in frame order, a few
+                # frames ahead of the search (OpenCV releases the GIL), not on this thread's path.
+                helper = stack.enter_context(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lanes"))
+                source = _prepared(source, helper, camera, lane_tracker, lanes_ahead)
             for index, (frame, found) in enumerate(detector.track_frames(source, tracker)):
                 if distances is not None:
                     found = distances.update(found)
                 detections.append(found)
                 lane = None
                 if lane_tracker is not None:
-                    lane = lane_tracker.step(frame)
+                    lane = lanes_ahead.popleft().result()
                     lane_rows.append((index, *((lane.radius_m, lane.offset_m) if lane else (None, None))))
                 if writer is not None:
                     shown = draw_lane(frame, lane, birds_eye) if lane_tracker is not None else frame
