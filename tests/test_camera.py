@@ -150,3 +150,28 @@ def test_real_photos():
     assert all("chessboard" in why for why in cam.images_skipped.values())
     assert cam.rms < 1.05  # 1.003 px; calibration15 alone is 2.4 px (see writeup)
     assert 1000 < cam.matrix[0, 0] < 1300 and cam.distortion[0] < -0.1  # barrel distortion
+
+
+def test_boxes_back_to_the_original_frame():
+    cam = calibrate(render_chessboards(6)).replace(distortion=[-0.25, 0.0, 0.0, 0.0, 0.0])
+    box = np.array([[40.0, 30.0, 200.0, 140.0]])  # in the original (distorted) frame, near a corner
+    corners = np.array([[40, 30], [200, 30], [40, 140], [200, 140]], float)
+    und = cam.undistort_points(corners)
+    und_box = [und[:, 0].min(), und[:, 1].min(), und[:, 0].max(), und[:, 1].max()]
+    assert abs(und_box[0] - 40) > 3  # distortion moves it
+    np.testing.assert_allclose(cam.distort_points(und), corners, atol=0.05)  # the inverse of undistort_points
+    back = cam.boxes_to_original([und_box])[0]
+    # the box around the bent edges of the undistorted box: encloses the original, not much larger
+    assert back[0] <= 40 and back[1] <= 30 and back[2] >= 200 and back[3] >= 140
+    area = (back[2] - back[0]) * (back[3] - back[1])
+    assert area < 1.4 * 160 * 110
+
+
+def test_cli_lanes_need_a_birds_eye_camera(tmp_path, capsys):
+    cam = calibrate(render_chessboards(4))
+    path = cam.save(tmp_path / "camera.json")
+    img = tmp_path / "road.png"
+    write_image(img, np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
+    assert main(["detect", str(img), "--lanes"]) == 2
+    assert main(["detect", str(img), "--camera", str(path), "--lanes"]) == 2
+    assert "bird's-eye" in capsys.readouterr().err
