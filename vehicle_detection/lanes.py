@@ -457,16 +457,23 @@ class DistanceTracker:
     ``update(detections)`` adds ``distance_m`` (from the bottom centre of the box, through
     :meth:`BirdsEye.ground_distance`; NaN beyond ``max_distance_m`` or above the horizon) and
     ``relative_speed_mps`` (the least-squares slope of the track's distances over its last
-    ``window`` frames times ``fps``; positive: pulling away; NaN until ``min_points`` frames, and
-    for untracked boxes) to ``detections.data``.
+    ``window`` frames, default one second, times ``fps``; positive: pulling away; NaN until
+    ``min_points`` frames, default half the window, and for untracked boxes) to
+    ``detections.data``.
     """
 
     birds_eye: BirdsEye
     fps: float
-    window: int = 15
-    min_points: int = 5
+    window: int | None = None
+    min_points: int | None = None
     max_distance_m: float = 150.0
     _history: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.window is None:  # one second of frames: box bottoms jitter by a pixel or two
+            self.window = max(3, int(round(self.fps)))
+        if self.min_points is None:
+            self.min_points = max(2, self.window // 2)
 
     def distances(self, xyxy: np.ndarray) -> np.ndarray:
         xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
