@@ -1,6 +1,6 @@
 """Detection speed on a 1280x720 clip, against a plain decode+encode of the same clip.
 
-    python benchmarks/bench_detection.py [VIDEO] [--model M] [--frames N]
+    python benchmarks/bench_detection.py [VIDEO] [--model M] [--frames N] [--camera CAMERA.json [--lanes]]
 
 VIDEO defaults to ../shared/data/videos/project_video_clip_A.mp4 when present, else the
 committed test_video.mp4. Prints frames per second for:
@@ -14,7 +14,10 @@ committed test_video.mp4. Prints frames per second for:
 * detection only: the detector and tracker over frames already in memory;
 * end to end: decode, detect, track, draw and encode to a file (``process_video``);
 
-and the ratio of end-to-end to the plain decode+encode.
+and the ratio of end-to-end to the plain decode+encode. With ``--camera`` (a file from
+``vehicle-detection calibrate``), also end to end with every frame undistorted, and with
+``--lanes`` too, end to end with undistortion, lane finding and drawing, and distances
+(``process_video(camera=..., lanes=True)``), plus the cost of each step per frame.
 """
 
 from __future__ import annotations
@@ -39,7 +42,11 @@ def main():
     ap.add_argument("video", nargs="?", default=None)
     ap.add_argument("--model", default=None, help="model file (default: the embedded model)")
     ap.add_argument("--frames", type=int, default=None, help="use only the first N frames")
+    ap.add_argument("--camera", default=None, help="camera file: also time end to end with undistortion")
+    ap.add_argument("--lanes", action="store_true", help="with --camera: also time end to end with lanes and distances")
     args = ap.parse_args()
+    if args.lanes and not args.camera:
+        ap.error("--lanes needs --camera CAMERA.json (with a bird's-eye transform)")
 
     from vehicle_detection.classifier import VehicleClassifier
     from vehicle_detection.detector import Detector
@@ -76,11 +83,39 @@ def main():
         process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, max_frames=n)
         e2e_fps = n / (time.perf_counter() - t)
 
+        extra = []
+        if args.camera:
+            from vehicle_detection.camera import Camera
+
+            camera = Camera.load(args.camera)
+            t = time.perf_counter()
+            undistorted = [camera.undistort(f) for f in frames]
+            extra.append(f"undistort (remap) alone        : {1000 * (time.perf_counter() - t) / n:6.2f} ms/frame")
+            if args.lanes:
+                from vehicle_detection.lanes import LaneTracker
+
+                tracker = LaneTracker(camera.birds_eye)
+                t = time.perf_counter()
+                for f in undistorted:
+                    tracker.step(f)
+                extra.append(f"lane finding alone (warp, threshold, fit): {1000 * (time.perf_counter() - t) / n:6.2f} ms/frame")
+            del undistorted
+            t = time.perf_counter()
+            process_video(video, Path(tmp) / "cam.mp4", detector=detector, progress=False, max_frames=n, camera=camera)
+            extra.append(f"end to end, undistorted        : {n / (time.perf_counter() - t):7.1f} fps")
+            if args.lanes:
+                t = time.perf_counter()
+                process_video(video, Path(tmp) / "lanes.mp4", detector=detector, progress=False, max_frames=n,
+                              camera=camera, lanes=True, lanes_csv=Path(tmp) / "lanes.csv")
+                extra.append(f"end to end, undistorted + lanes + distances: {n / (time.perf_counter() - t):7.1f} fps")
+
     print(f"decode+encode, plain PyAV (reference)    : {plain_fps:7.1f} fps")
     print(f"decode+encode, vehicle_detection.video   : {copy_fps:7.1f} fps")
     print(f"detection only (in memory): {detect_fps:7.1f} fps   ({1000 / detect_fps:.1f} ms/frame)")
     print(f"end to end (decode, detect, track, draw, encode): {e2e_fps:7.1f} fps   "
           f"= {e2e_fps / plain_fps:.2f} x plain decode+encode")
+    for line in extra:
+        print(line)
 
 
 def _plain_pyav_copy(src: Path, dest: Path, n: int) -> None:

@@ -57,6 +57,13 @@ EXPECTED = {
         "evaluation_labelled_frames.png",
     ],
     "06_localisation.ipynb": ["localisation_before_after.png"],
+    "07_camera_lanes.ipynb": [
+        "camera_undistorted.png",
+        "lanes_birds_eye.png",
+        "lanes_binary_fit.png",
+        "test_video_lanes.mp4",
+        "lanes_final_frame.png",
+    ],
 }
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Largest committed notebook (figures are the compact PNGs of plots.save_figure).

@@ -180,3 +180,39 @@ def test_round_trip_property(rows):
         assert row[:6] == row2[:6]
         s, s2 = row[6], row2[6]
         assert abs(s - s2) <= 0.00005 * (1 + 1e-9) + abs(s) * 1e-15  # 4 decimals
+
+
+def test_distances_and_file_columns_together(tmp_path):
+    dets = DETS.replace(
+        data={
+            "distance_m": np.array([12.345, np.nan, 30.0, 7.5]),
+            "relative_speed_mps": np.array([np.nan, -1.5, 0.25, 2.0]),
+        }
+    )
+    names = ["a.jpg", "b,c.jpg", 'd"e.png', "f.png"]
+    path = write_boxes_csv(tmp_path / "boxes.csv", dets, files=names)
+    lines = path.read_text().splitlines()
+    assert lines[0] == BOXES_CSV_HEADER + ",distance_m,relative_speed_mps,file"
+    assert lines[1] == "7,10,20,74,84,3,0.5000,12.35,,a.jpg"
+    assert lines[2] == '2,0,0,64,64,-1,1.2346,,-1.50,"b,c.jpg"'
+    assert lines[3] == '7,100,20,164,84,4,-0.7500,30.00,0.25,"d""e.png"'
+    back = read_boxes_csv(path)
+    assert list(back.data["file"]) == names
+    np.testing.assert_allclose(back.data["distance_m"], [12.35, np.nan, 30.0, 7.5])
+    np.testing.assert_allclose(back.data["relative_speed_mps"], [np.nan, -1.5, 0.25, 2.0])
+    assert write_boxes_csv(tmp_path / "again.csv", back, files=back.data["file"]).read_bytes() == path.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "header, row, fragment",
+    [
+        (",distance_m,relative_speed_mps,file", "0,1,2,30,40,0,1.0,5.0,a.png", "expected 10 fields"),
+        (",file,distance_m,relative_speed_mps", "0,1,2,30,40,0,1.0,a.png,5.0,1.0", "header is"),
+        (",distance_m,relative_speed_mps,file", "0,1,2,30,40,0,1.0,near,,a.png", "distance_m 'near' is not a number"),
+    ],
+)
+def test_read_rejects_broken_extended_files(tmp_path, header, row, fragment):
+    p = tmp_path / "boxes.csv"
+    p.write_text(BOXES_CSV_HEADER + header + "\n" + row + "\n")
+    with pytest.raises(InputError, match=fragment):
+        read_boxes_csv(p)

@@ -37,6 +37,18 @@ _API = {
     "detect_many": "batch",
     "InputResult": "batch",
     "MoviepyAdapter": "live",
+    # camera, lanes and distances
+    "Camera": "camera",
+    "calibrate": "camera",
+    "BirdsEye": "lanes",
+    "birds_eye_from_straight": "lanes",
+    "lane_binary": "lanes",
+    "find_lane_pixels": "lanes",
+    "fit_lanes": "lanes",
+    "Lane": "lanes",
+    "LaneTracker": "lanes",
+    "DistanceTracker": "lanes",
+    "draw_lane": "lanes",
     # models and training
     "VehicleClassifier": "classifier",
     "load_model": "classifier",
@@ -63,6 +75,7 @@ _API = {
     "write_coco": "formats",
     "write_parquet": "formats",
     "read_parquet": "formats",
+    "write_lanes_csv": "tables",
     "draw_boxes": "drawing",
     "draw_detections": "drawing",
     # evaluation
@@ -93,6 +106,8 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
+    from .camera import Camera, calibrate
+    from .lanes import BirdsEye, DistanceTracker, Lane, LaneTracker, birds_eye_from_straight, draw_lane, find_lane_pixels, fit_lanes, lane_binary
     from .classifier import VehicleClassifier, load_default_model, load_model, split_indices, sweep, sweep_configs, train
     from .config import DetectorConfig
     from .data import find_duplicates, load_dataset
@@ -106,7 +121,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .mining import MiningSource, mine_negatives, write_negatives
     from .search import SearchPlan, SearchScale, search
     from .tracker import Tracker, TrackerConfig
-    from .tables import read_boxes_csv, write_boxes_csv
+    from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
     from .tracking_metrics import tracking_scores
     from .pipeline import process_video
     from .batch import InputResult, detect_many

@@ -1,6 +1,6 @@
 """The ``vehicle-detection`` command.
 
-Subcommands: ``download``, ``train``, ``sweep``, ``detect``, ``evaluate``, ``mine-negatives``. Errors a user can
+Subcommands: ``download``, ``train``, ``sweep``, ``calibrate``, ``detect``, ``evaluate``, ``mine-negatives``. Errors a user can
 cause, usage errors included, print one line on stderr (``vehicle-detection: error: ...``) and
 exit non-zero; ``--debug`` prints the traceback before that line (the exit code stays the same).
 
@@ -155,6 +155,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p)
 
     p = sub.add_parser(
+        "calibrate",
+        help="calibrate the camera from chessboard photos (and derive the bird's-eye view from straight-road frames)",
+        description="Finds the inner chessboard corners (sub-pixel) in every photo of DIR, skips photos without a full "
+        "board (saying why), crops photos a pixel or two larger than the majority size at the right and bottom "
+        "(larger differences are skipped; nothing is rescaled), and fits the camera matrix and lens distortion. "
+        "With --straight, also derives the bird's-eye transform for lane finding and distances from frames of a "
+        "straight road (undistorted first).",
+    )
+    p.add_argument("dir", metavar="DIR", help="folder of chessboard photos")
+    p.add_argument("--out", default=None, help="camera file to write (JSON); omitted: report only")
+    p.add_argument("--pattern", default="9x6", help="inner corners per row x per column (default %(default)s)")
+    p.add_argument("--straight", nargs="+", default=[], metavar="IMG",
+                   help="frames of a straight road with both lane lines, for the bird's-eye transform (e.g. straight_lines1.jpg straight_lines2.jpg)")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object on the last line")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing camera file")
+    _add_common(p)
+
+    p = sub.add_parser(
         "detect", help="detect vehicles in images, folders of images, and videos",
         description="Detect and track vehicles. One INPUT (an image, a folder of images or a video) writes its "
         "outputs next to it (or --out, --boxes). Several inputs, globs, folders of videos, or any of the batch "
@@ -191,6 +209,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="x264 speed preset for videos: %(choices)s (default %(default)s: fastest, larger files)")
     p.add_argument("--crf", type=int, default=23, choices=range(0, 52), metavar="CRF",
                    help="x264 quality for videos, 0-51, lower is better (default %(default)s)")
+    p.add_argument("--camera", default=None, metavar="CAMERA.json",
+                   help="undistort every frame with this camera file (from 'calibrate') before the search; with its "
+                   "bird's-eye transform, boxes also get distances (m) and relative speeds (m/s)")
+    p.add_argument("--lanes", action="store_true", help="find and draw the lane, its radius and the car's offset (needs --camera with a bird's-eye transform)")
+    p.add_argument("--lanes-csv", default=None, metavar="L.csv", help="write frame,curvature_m,offset_m per frame (implies --lanes)")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
 
@@ -209,6 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
                    help="where the road meets the horizon, as a fraction of the frame height from the top "
                    "(default: the model's search plan, made for the project camera: 0.56)")
+    p.add_argument("--camera", default=None, metavar="CAMERA.json",
+                   help="undistort every frame with this camera file before the search (the boxes are mapped back to the "
+                   "original frames, where the labels are, before scoring)")
     p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
@@ -404,6 +430,74 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _cmd_calibrate(args) -> int:
+    from .camera import calibrate
+    from .images import list_images, read_image
+
+    try:
+        cols, rows = (int(v) for v in args.pattern.lower().split("x"))
+        if cols < 2 or rows < 2:
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"--pattern: expected inner corners like 9x6, got {args.pattern!r}") from None
+    folder = Path(args.dir)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: no such folder of chessboard photos")
+    photos = list_images(folder)
+    straight = [Path(p) for p in args.straight]
+    if args.out is not None:
+        from ._files import check_output_path
+
+        check_output_path(args.out, overwrite=args.overwrite, inputs=[*photos, *straight])
+    t = time.perf_counter()
+    camera = calibrate(folder, (cols, rows))
+    if straight:
+        from .lanes import birds_eye_from_straight
+
+        frames = [read_image(p) for p in straight]
+        for p, f in zip(straight, frames):
+            camera.check_size(f.shape[1], f.shape[0], str(p))
+        camera = camera.replace(birds_eye=birds_eye_from_straight(frames, camera))
+    w, h = camera.image_size
+    print(f"{folder}: {len(camera.images_used)} of {len(photos)} photos used ({w}x{h}), RMS reprojection error {camera.rms:.3f} px")
+    for name in camera.images_cropped:
+        print(f"  {name}: cropped to {w}x{h} (right and bottom edges)")
+    for name, why in camera.images_skipped.items():
+        print(f"  {name}: skipped: {why}")
+    worst = max(camera.per_image_rms.items(), key=lambda kv: kv[1])
+    print(f"  largest per-photo RMS: {worst[0]} {worst[1]:.2f} px")
+    if camera.birds_eye is not None:
+        be = camera.birds_eye
+        print(f"bird's-eye view from {len(straight)} straight-road frame(s): {be.xm_per_px * 100:.2f} cm per pixel across, "
+              f"{be.ym_per_px * 100:.2f} cm per pixel along the road")
+    if args.out is not None:
+        camera.save(args.out, overwrite=args.overwrite, inputs=[*photos, *straight])
+        print(f"camera saved to {args.out} ({time.perf_counter() - t:.1f} s)")
+    else:
+        print("camera not saved (pass --out camera.json to save it)")
+    if args.json:
+        report = {
+            "rms": camera.rms,
+            "images_used": len(camera.images_used),
+            "images_cropped": list(camera.images_cropped),
+            "images_skipped": camera.images_skipped,
+            "image_size": list(camera.image_size),
+            "per_image_rms": camera.per_image_rms,
+            "birds_eye": None if camera.birds_eye is None else camera.birds_eye.to_dict(),
+            "out": args.out,
+        }
+        print(json.dumps(report))
+    return 0
+
+
+def _load_camera(path):
+    if path is None:
+        return None
+    from .camera import Camera
+
+    return Camera.load(path)
+
+
 def _load_detector(model_path, horizon: float | None = None):
     from .classifier import VehicleClassifier, load_default_model
     from .detector import Detector
@@ -471,6 +565,8 @@ def _cmd_detect_many(args) -> int:
 
     if args.out or args.boxes:
         raise UsageError("--out and --boxes name the outputs of one input; in a batch use --out-dir (default names)")
+    if args.camera or args.lanes or args.lanes_csv:
+        raise UsageError("--camera, --lanes and --lanes-csv apply to one input at a time, not to a batch")
     formats = [f.strip() for f in args.format.split(",") if f.strip()]
     if args.table is not None and Path(args.table).suffix.lower() != ".parquet":
         raise UsageError(f"--table {args.table}: the table of all inputs is a Parquet file (.parquet)")
@@ -543,8 +639,17 @@ def _cmd_detect_one(args) -> int:
         check_image_output(out)  # a format Pillow can write, before any work
     if kind == "folder" and out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder; the annotated images of a folder go into a folder")
-    for o in (out, boxes):
-        if kind != "folder" or o is boxes:
+    lanes_csv = Path(args.lanes_csv) if args.lanes_csv else None
+    lanes = args.lanes or lanes_csv is not None
+    if args.camera:
+        model_inputs.append(Path(args.camera))
+    camera = _load_camera(args.camera)
+    if lanes and (camera is None or camera.birds_eye is None):
+        raise UsageError("--lanes needs --camera CAMERA.json with a bird's-eye transform (made by 'calibrate DIR --straight IMG ...')")
+    if lanes_csv is not None and lanes_csv.resolve() in (out.resolve(), boxes.resolve()):
+        raise OutputError(f"{lanes_csv}: the lanes CSV must be a file of its own")
+    for o in (out, boxes, *([lanes_csv] if lanes_csv else [])):
+        if kind != "folder" or o is not out:
             check_output_path(o, overwrite=args.overwrite, inputs=[inp, *model_inputs])
     files = list_images(inp) if kind == "folder" else [inp]
     outs = [out / f.name for f in files] if kind == "folder" else [out]
@@ -563,28 +668,47 @@ def _cmd_detect_one(args) -> int:
         if kind == "video":
             table = process_video(
                 inp, out, detector=detector, overwrite=args.overwrite, progress=not args.no_progress,
-                preset=args.preset, crf=args.crf,
+                preset=args.preset, crf=args.crf, camera=camera, lanes=lanes, lanes_csv=lanes_csv,
             )
             write_boxes_csv(boxes, table, overwrite=args.overwrite, inputs=inputs)
             n = len(table.frames())
             report = [f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)"]
+            if lanes_csv is not None:
+                report.append(f"lanes: {lanes_csv}")
         else:
-            found = []
+            found, lane_rows = [], []
             for i, (f, o) in enumerate(zip(files, outs)):
                 image = read_image(f)
+                if camera is not None:
+                    camera.check_size(image.shape[1], image.shape[0], str(f))
+                    image = camera.undistort(image)
                 det = detector.detect_image(image).replace(frame=i)
-                write_image(o, draw_detections(image, det), overwrite=args.overwrite, inputs=inputs)
+                shown = image
+                if camera is not None and camera.birds_eye is not None:
+                    from .lanes import DistanceTracker, LaneTracker, draw_lane
+
+                    det = DistanceTracker(camera.birds_eye, 25.0).update(det)
+                    if lanes:
+                        lane = LaneTracker(camera.birds_eye).step(image)
+                        lane_rows.append((i, *((lane.radius_m, lane.offset_m) if lane else (None, None))))
+                        shown = draw_lane(image, lane, camera.birds_eye)
+                write_image(o, draw_detections(shown, det), overwrite=args.overwrite, inputs=inputs)
                 found.append(det)
                 print(f"{f}: {len(det)} vehicles -> {o}")  # progress; o appears at the end
             names = [f.name for f, det in zip(files, found) for _ in range(len(det))] if kind == "folder" else None
             write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs, files=names)
             report = [f"boxes: {boxes}"]
+            if lanes_csv is not None:
+                from .tables import write_lanes_csv
+
+                write_lanes_csv(lanes_csv, lane_rows, overwrite=args.overwrite, inputs=inputs)
+                report.append(f"lanes: {lanes_csv}")
     for line in report:
         print(line)
     return 0
 
 
-def _detect_for_labels(labels, source: Path, detector, progress: bool):
+def _detect_for_labels(labels, source: Path, detector, progress: bool, camera=None):
     """Run the detector over what a labels file covers: ``(Detections, fps or None)``."""
     from contextlib import closing
     from itertools import islice
@@ -602,7 +726,10 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool):
         for i, lab in labels.frames.items():
             if lab.file is not None and files[i].name != lab.file:
                 raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {source} is {files[i].name}")
-        return Detections.concatenate(detector.detect_image(read_image(files[i])).replace(frame=i) for i in labels.frames), None
+        if camera is None:
+            return Detections.concatenate(detector.detect_image(read_image(files[i])).replace(frame=i) for i in labels.frames), None
+        found = Detections.concatenate(detector.detect_image(camera.undistort(read_image(files[i]))).replace(frame=i) for i in labels.frames)
+        return found.replace(xyxy=camera.boxes_to_original(found.xyxy)), None
     # Labels beyond the end of the video would silently count as missed cars: check first, by
     # decoding (the container's frame count is only an estimate for some formats).
     with closing(read_frames(source)) as frames:
@@ -613,7 +740,9 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool):
             f"{labels.path}: labels frame(s) {', '.join(map(str, beyond))}, but {source} has only "
             f"{n_decoded} decoded frames (0..{n_decoded - 1}); wrong video or labels?"
         )
-    table = process_video(source, None, detector=detector, progress=progress, max_frames=last)
+    table = process_video(source, None, detector=detector, progress=progress, max_frames=last, camera=camera)
+    if camera is not None:  # the labels are in the original (distorted) frames
+        table = table.replace(xyxy=camera.boxes_to_original(table.xyxy))
     return table, probe_video(source).fps
 
 
@@ -647,6 +776,9 @@ def _cmd_evaluate(args) -> int:
     if args.video and len(all_labels) > 1:
         raise UsageError("--video applies to one labels file; with several, each names its own video")
     detector = None if args.boxes else _load_detector(args.model, args.horizon)
+    if args.camera and args.boxes:
+        raise UsageError("--camera applies when the detector runs, not to --boxes")
+    camera = _load_camera(args.camera)
     t = time.perf_counter()
     reports = {}
     for labels in all_labels:
@@ -656,7 +788,7 @@ def _cmd_evaluate(args) -> int:
             source = Path(args.video) if args.video else labels.source
             if source is None:
                 raise InputError(f"{labels.path}: the labels name no video; give --video")
-            found, fps = _detect_for_labels(labels, source, detector, progress=not args.no_progress)
+            found, fps = _detect_for_labels(labels, source, detector, progress=not args.no_progress, camera=camera)
         reports[str(labels.path)] = evaluation_report(found, labels, fps=fps)
         _print_report(str(labels.path), reports[str(labels.path)])
     pooled = {}
@@ -780,6 +912,7 @@ _COMMANDS = {
     "download": _cmd_download,
     "train": _cmd_train,
     "sweep": _cmd_sweep,
+    "calibrate": _cmd_calibrate,
     "detect": _cmd_detect,
     "evaluate": _cmd_evaluate,
     "mine-negatives": _cmd_mine_negatives,

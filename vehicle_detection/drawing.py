@@ -117,6 +117,9 @@ def draw_boxes(
 def draw_detections(image: np.ndarray, detections: Detections, *, color: Sequence[int] = BOX_COLOR, thickness: int = 4) -> np.ndarray:
     """A copy of an RGB frame with each detection's box drawn, labelled ``car <id>`` when tracked.
 
+    With a ``distance_m`` column in ``detections.data``, the label also gives the distance
+    (``car 3 24 m``).
+
     Parameters
     ----------
     image : ndarray of uint8, shape (H, W, 3)
@@ -130,4 +133,10 @@ def draw_detections(image: np.ndarray, detections: Detections, *, color: Sequenc
     ndarray of uint8, shape (H, W, 3)
     """
     labels = None if detections.track_id is None else [f"car {t}" if t >= 0 else "" for t in detections.track_id.tolist()]
+    if "distance_m" in detections.data:  # from detect --lanes / --camera: "car 3  24 m"
+        dist = np.asarray(detections.data["distance_m"], dtype=np.float64)
+        labels = [
+            " ".join(filter(None, [labels[i] if labels else "", f"{d:.0f} m" if np.isfinite(d) else ""]))
+            for i, d in enumerate(dist.tolist())
+        ]
     return draw_boxes(image, detections.xyxy, color=color, thickness=thickness, labels=labels)

@@ -10,12 +10,14 @@ from __future__ import annotations
 import itertools
 import os
 import sys
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from ._files import check_output_path
-from .errors import OutputError
+from ._files import check_output_path, output_batch
+from .errors import InputError, OutputError
 from .images import check_frame_shape
 from .video import VideoWriter, probe_video, read_frames
 
@@ -29,6 +31,33 @@ def _in_notebook() -> bool:
         return shell is not None and type(shell.get_ipython()).__name__ == "ZMQInteractiveShell"
     except Exception:
         return False
+
+
+def _prepared(source, helper: ThreadPoolExecutor, camera, lane_tracker, lanes_ahead: deque, ahead: int = 3):
+    """Frames undistorted (when ``camera``) in ``helper``, ``ahead`` frames in advance.
+
+    With ``lane_tracker``, the lane of each frame is found in the same (single) helper thread,
+    so in frame order; its future is appended to ``lanes_ahead`` as the frame is yielded.
+    """
+
+    def work(frame):
+        if camera is not None:
+            frame = camera.undistort(frame)
+        return frame, None if lane_tracker is None else helper.submit(lane_tracker.step, frame)
+
+    pending: deque = deque()
+    for frame in source:
+        pending.append(helper.submit(work, frame))
+        if len(pending) > ahead:
+            frame, lane = pending.popleft().result()
+            if lane is not None:
+                lanes_ahead.append(lane)
+            yield frame
+    while pending:
+        frame, lane = pending.popleft().result()
+        if lane is not None:
+            lanes_ahead.append(lane)
+        yield frame
 
 
 def process_video(
@@ -45,6 +74,10 @@ def process_video(
     start: int = 0,
     end: int | None = None,
     workers: int = 2,
+    camera=None,
+    lanes: bool = False,
+    lanes_csv: str | os.PathLike | None = None,
+    birds_eye=None,
 ):
     """Detect and track vehicles through a video; write the annotated video and the boxes.
 
@@ -77,19 +110,30 @@ def process_video(
         ``start`` are decoded and dropped; ``frame`` in the result stays the decoded index.
     workers : int
         Frames searched at once (threads; see :meth:`Detector.track_frames`).
+    camera : Camera, optional
+        Undistort every frame before the search (:mod:`vehicle_detection.camera`); the video
+        must have the camera's image size (else :class:`InputError`, before any frame).
+    lanes : bool
+        Find the lane in every frame (:class:`~vehicle_detection.lanes.LaneTracker`) and draw
+        it with its radius of curvature and the car's offset. Needs a bird's-eye transform.
+    lanes_csv : path-like, optional
+        CSV ``frame,curvature_m,offset_m`` (empty fields where no lane), written atomically with
+        the boxes CSV; implies ``lanes``.
+    birds_eye : BirdsEye, optional
+        The road-plane transform; default ``camera.birds_eye``. When known, every box gets
+        ``distance_m`` and ``relative_speed_mps`` in its ``data`` (NaN where unknown).
 
     Returns
     -------
     Detections
         Every reported box, frame by frame (``frame``: 0-based decoded frame index), tracked.
     """
-    import contextlib
     from contextlib import ExitStack
 
     from .detections import Detections
     from .detector import Detector
     from .drawing import draw_detections
-    from .tables import write_boxes_csv
+    from .tables import write_boxes_csv, write_lanes_csv
 
     path = Path(path)
     detector = detector or Detector()
@@ -111,6 +155,30 @@ def process_video(
         total = max(0, min(total, stop if stop is not None else total) - start)
     elif stop is not None:
         total = stop - start
+    lanes = lanes or lanes_csv is not None
+    if lanes_csv is not None:
+        check_output_path(lanes_csv, overwrite=overwrite, inputs=[path])
+        if any(o is not None and Path(o).resolve() == Path(lanes_csv).resolve() for o in (output, boxes_csv)):
+            raise OutputError(f"{lanes_csv}: the lanes CSV must be a file of its own")
+    if camera is not None:
+        camera.check_size(info.width, info.height, f"{path}: the video")
+    if birds_eye is None and camera is not None:
+        birds_eye = camera.birds_eye
+    if birds_eye is not None and tuple(birds_eye.image_size) != (info.width, info.height):
+        w, h = birds_eye.image_size
+        raise InputError(f"{path}: the video is {info.width}x{info.height}, but the bird's-eye transform is for {w}x{h} frames")
+    if lanes and birds_eye is None:
+        raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
+    lane_tracker = distances = None
+    if lanes:
+        from .lanes import LaneTracker, draw_lane
+
+        lane_tracker = LaneTracker(birds_eye)
+    if birds_eye is not None:
+        from .lanes import DistanceTracker
+
+        distances = DistanceTracker(birds_eye, info.fps or 25.0)
+    lane_rows = []
     tracker = detector.new_tracker()
     if start:
         from .tracker import Tracker, TrackerState
@@ -118,9 +186,10 @@ def process_video(
         tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))  # frames keep their decoded index
     detections = []
     frames = read_frames(path)
-    csv_written = False
     try:
-        with ExitStack() as stack:
+        # All outputs are committed together when the run succeeds (the video last); on any
+        # failure, Ctrl-C included, none is, and earlier outputs of the same names stay as they were.
+        with output_batch(), ExitStack() as stack:
             writer = None
             if output is not None:
                 writer = stack.enter_context(
@@ -132,26 +201,32 @@ def process_video(
 
                 bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
             source = frames if (start == 0 and stop is None) else itertools.islice(frames, start, stop)
-            for frame, found in detector.track_frames(source, tracker, workers=workers):
+            lanes_ahead: deque = deque()
+            if camera is not None or lane_tracker is not None:
+                # Undistortion and lane finding run in a helper thread, in frame order, a few
+                # frames ahead of the search (OpenCV releases the GIL), not on this thread's path.
+                helper = stack.enter_context(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lanes"))
+                source = _prepared(source, helper, camera, lane_tracker, lanes_ahead)
+            for index, (frame, found) in enumerate(detector.track_frames(source, tracker, workers=workers), start=start):
+                if distances is not None:
+                    found = distances.update(found)
                 detections.append(found)
+                lane = None
+                if lane_tracker is not None:
+                    lane = lanes_ahead.popleft().result()
+                    lane_rows.append((index, *((lane.radius_m, lane.offset_m) if lane else (None, None))))
                 if writer is not None:
-                    writer.write(draw_detections(frame, found))
+                    shown = draw_lane(frame, lane, birds_eye) if lane_tracker is not None else frame
+                    writer.write(draw_detections(shown, found))
                 if bar is not None:
                     bar.update()
             table = Detections.concatenate(detections)
+            if distances is not None and not len(table):  # the columns, even without boxes
+                table = table.replace(data={"distance_m": np.zeros(0), "relative_speed_mps": np.zeros(0)})
+            if lanes_csv is not None:
+                write_lanes_csv(lanes_csv, lane_rows, overwrite=overwrite, inputs=[path])
             if boxes_csv is not None:
-                # Written before the video is renamed into place: once the video exists under
-                # its final name, the CSV is complete too.
                 write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
-                csv_written = True
-    except BaseException:
-        # The video failed after the CSV was renamed into place (the encoder failing to finish the
-        # file, Ctrl-C during its final flush): remove the CSV too, so that no output of a
-        # failed run is left looking finished.
-        if csv_written:
-            with contextlib.suppress(OSError):
-                Path(boxes_csv).unlink()
-        raise
     finally:
         frames.close()
     return table

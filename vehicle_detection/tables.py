@@ -15,6 +15,14 @@ in RFC 4180 when it holds a comma, a quote or a line break), and ``frame`` is th
 position in sorted order (``frame,x1,y1,x2,y2,track_id,score,file``). The CSV of a video or of
 one image has no ``file`` column. :func:`read_boxes_csv` reads both; the names land in
 ``data["file"]``.
+
+When the detections carry distances (``data["distance_m"]`` and ``data["relative_speed_mps"]``,
+from ``detect --lanes``), two more columns follow the score, ``distance_m,relative_speed_mps`` (metres and
+metres per second, 2 decimals; an empty field where unknown, read back as NaN). Without them the
+file is exactly the 7-column format above; :func:`read_boxes_csv` accepts each form.
+
+The lanes CSV (:func:`write_lanes_csv`) has the header ``frame,curvature_m,offset_m``, one row
+per frame, empty fields where no lane was found.
 """
 
 from __future__ import annotations
@@ -31,10 +39,20 @@ from .detections import Detections
 from .errors import InputError
 from .geometry import MAX_COORD
 
-__all__ = ["BOXES_CSV_HEADER", "FILES_CSV_HEADER", "write_boxes_csv", "read_boxes_csv"]
+__all__ = [
+    "BOXES_CSV_HEADER",
+    "DISTANCE_COLUMNS",
+    "FILES_CSV_HEADER",
+    "LANES_CSV_HEADER",
+    "write_boxes_csv",
+    "read_boxes_csv",
+    "write_lanes_csv",
+]
 
 BOXES_CSV_HEADER = "frame,x1,y1,x2,y2,track_id,score"
 FILES_CSV_HEADER = BOXES_CSV_HEADER + ",file"
+DISTANCE_COLUMNS = ("distance_m", "relative_speed_mps")
+LANES_CSV_HEADER = "frame,curvature_m,offset_m"
 _COLUMNS = tuple(BOXES_CSV_HEADER.split(","))
 _INT = re.compile(r"-?[0-9]+", re.ASCII)
 _FLOAT = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?", re.ASCII)
@@ -82,14 +100,24 @@ def write_boxes_csv(
     names = None if files is None else [str(f) for f in files]
     if names is not None and len(names) != len(detections):
         raise ValueError(f"files: one name per row ({len(detections)}), got {len(names)}")
-    lines = [BOXES_CSV_HEADER if names is None else FILES_CSV_HEADER]
+    extended = all(c in detections.data for c in DISTANCE_COLUMNS)
+    extra = [np.asarray(detections.data[c], dtype=np.float64) for c in DISTANCE_COLUMNS] if extended else []
+    lines = [_header(extended, names is not None)]
     for i, (frame, x1, y1, x2, y2, track_id, score) in enumerate(detections.rows()):
-        row = f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}"
-        lines.append(row if names is None else f"{row},{_quote(names[i])}")
+        line = f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}"
+        line += "".join("," + (f"{col[i]:.2f}" if np.isfinite(col[i]) else "") for col in extra)
+        lines.append(line if names is None else f"{line},{_quote(names[i])}")
     text = "\n".join(lines) + "\n"
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")
     return Path(path)
+
+
+def _header(distances: bool, files: bool) -> str:
+    return BOXES_CSV_HEADER + ("," + ",".join(DISTANCE_COLUMNS) if distances else "") + (",file" if files else "")
+
+
+_HEADERS = {_header(d, f): (d, f) for d in (False, True) for f in (False, True)}
 
 
 def _quote(text: str) -> str:
@@ -98,12 +126,23 @@ def _quote(text: str) -> str:
     return text
 
 
-def _parse_line(line: str, lineno: int, path: Path) -> tuple[int, int, int, int, int, int, float]:
-    fields = line.split(",")
-    if len(fields) != len(_COLUMNS):
-        raise InputError(
-            f"{path}: line {lineno}: expected {len(_COLUMNS)} fields ({BOXES_CSV_HEADER}), got {len(fields)}"
-        )
+def _parse_extra(fields: list[str], lineno: int, path: Path) -> tuple[float, ...]:
+    out = []
+    for name, text in zip(DISTANCE_COLUMNS, fields):
+        if text == "":
+            out.append(float("nan"))
+        elif _FLOAT.fullmatch(text):
+            out.append(float(text))
+        else:
+            raise InputError(f"{path}: line {lineno}: {name} {text!r} is not a number (leave it empty when unknown)")
+    return tuple(out)
+
+
+def _parse_line(fields: list[str], lineno: int, path: Path, header: str) -> tuple[int, int, int, int, int, int, float]:
+    n_fields = header.count(",") + 1
+    if len(fields) != n_fields:
+        raise InputError(f"{path}: line {lineno}: expected {n_fields} fields ({header}), got {len(fields)}")
+    fields = fields[: len(_COLUMNS)]
     ints = []
     for name, text in zip(_COLUMNS[:6], fields[:6]):
         if not _INT.fullmatch(text):
@@ -137,13 +176,15 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
     Parameters
     ----------
     path : path-like
-        CSV with the header ``frame,x1,y1,x2,y2,track_id,score`` exactly (a UTF-8 byte-order
-        mark and CRLF line ends are accepted). Blank lines are allowed only at the end.
+        CSV with the header ``frame,x1,y1,x2,y2,track_id,score`` exactly, or that header followed
+        by ``,distance_m,relative_speed_mps`` (a UTF-8 byte-order mark and CRLF line ends are
+        accepted). Blank lines are allowed only at the end.
 
     Returns
     -------
     Detections
-        The rows in file order; untracked (``track_id`` None) when every row's id is -1.
+        The rows in file order; untracked (``track_id`` None) when every row's id is -1. With
+        the distance columns, ``data`` holds them (float64, NaN for empty fields).
 
     Raises
     ------
@@ -159,29 +200,53 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
         lines.pop()
     if not lines:
         raise InputError(f"{path}: line 1: empty file; expected the header {BOXES_CSV_HEADER}")
-    if lines[0] == FILES_CSV_HEADER:
-        return _read_files_csv(path, lines)
-    if lines[0] != BOXES_CSV_HEADER:
-        raise InputError(f"{path}: line 1: header is {lines[0]!r}; expected {BOXES_CSV_HEADER!r}")
-    rows = []
-    for lineno, line in enumerate(lines[1:], start=2):
-        if not line.strip():
+    header = lines[0]
+    if header not in _HEADERS:
+        raise InputError(
+            f"{path}: line 1: header is {header!r}; expected {BOXES_CSV_HEADER!r} "
+            f"(optionally followed by ,{','.join(DISTANCE_COLUMNS)} and/or ,file)"
+        )
+    distances, files = _HEADERS[header]
+    if files:  # file names may be quoted (RFC 4180)
+        import csv
+
+        records = list(csv.reader(lines[1:]))
+    else:
+        records = [line.split(",") for line in lines[1:]]
+    rows, extra, names = [], [], []
+    for lineno, fields in enumerate(records, start=2):
+        if not fields or fields == [""] or (len(fields) == 1 and not fields[0].strip()):
             raise InputError(f"{path}: line {lineno}: blank line inside the data")
-        rows.append(_parse_line(line, lineno, path))
-    return Detections.from_rows(rows)
-
-
-def _read_files_csv(path: Path, lines: list[str]) -> Detections:
-    """The CSV of a folder of images: the last column names each row's image file."""
-    import csv
-
-    rows, names = [], []
-    for lineno, fields in enumerate(csv.reader(lines[1:]), start=2):
-        if not fields:
-            raise InputError(f"{path}: line {lineno}: blank line inside the data")
-        if len(fields) != len(_COLUMNS) + 1:
-            raise InputError(f"{path}: line {lineno}: expected {len(_COLUMNS) + 1} fields ({FILES_CSV_HEADER}), got {len(fields)}")
-        rows.append(_parse_line(",".join(fields[:-1]), lineno, path))
-        names.append(fields[-1])
+        rows.append(_parse_line(fields, lineno, path, header))
+        if distances:
+            extra.append(_parse_extra(fields[len(_COLUMNS) : len(_COLUMNS) + len(DISTANCE_COLUMNS)], lineno, path))
+        if files:
+            names.append(fields[-1])
     table = Detections.from_rows(rows)
-    return table.replace(data={"file": np.array(names, dtype=str)}) if rows else table
+    if not rows:
+        return table
+    data = {}
+    if distances:
+        cols = np.array(extra, dtype=np.float64).reshape(-1, len(DISTANCE_COLUMNS))
+        data.update({name: cols[:, i] for i, name in enumerate(DISTANCE_COLUMNS)})
+    if files:
+        data["file"] = np.array(names, dtype=str)
+    return table.replace(data=data) if data else table
+
+
+def write_lanes_csv(
+    path: str | os.PathLike,
+    rows: Iterable[tuple[int, float, float]],
+    *,
+    overwrite: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> Path:
+    """Write ``frame,curvature_m,offset_m`` rows atomically (NaN or None: an empty field)."""
+
+    def fmt(v, digits):
+        return f"{v:.{digits}f}" if v is not None and np.isfinite(v) else ""
+
+    lines = [LANES_CSV_HEADER] + [f"{int(f)},{fmt(c, 1)},{fmt(o, 3)}" for f, c, o in rows]
+    with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8", newline="\n")
+    return Path(path)

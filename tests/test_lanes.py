@@ -1,0 +1,219 @@
+"""Lane finding, radius and offset on synthetic bird's-eye roads; distances; the CSV columns; the real frames."""
+
+from __future__ import annotations
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import REPO, shared_data_dir
+from vehicle_detection.detections import Detections
+from vehicle_detection.lanes import (
+    BirdsEye,
+    DistanceTracker,
+    LaneTracker,
+    birds_eye_from_straight,
+    draw_lane,
+    lane_measures,
+)
+from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv, write_boxes_csv, write_lanes_csv
+
+W, H = 640, 360
+XM = 3.7 / 320  # lines 320 px apart
+YM = 0.1
+
+
+def identity_view() -> BirdsEye:
+    """A 'camera' that already looks straight down: the warp is the identity."""
+    pts = [[160, H], [160, 0], [480, 0], [480, H]]
+    return BirdsEye(pts, pts, (W, H), (W, H), XM, YM)
+
+
+def synthetic_road(radius_m: float, shift_px: float, *, dashed: bool = True, width_px: float = 320) -> np.ndarray:
+    """A warped binary image of a lane curving with ``radius_m`` (at the bottom), shifted ``shift_px`` right."""
+    img = np.zeros((H, W), np.uint8)
+    y = np.arange(H)
+    y_m = (H - 1 - y) * YM
+    bend = (radius_m - np.sqrt(np.maximum(radius_m**2 - y_m**2, 0))) / XM  # a circle through the bottom
+    for base in (160 + shift_px, 160 + width_px + shift_px):
+        x = base + bend
+        for yy in range(H):
+            if dashed and base > 300 and (yy // 30) % 3 == 2:
+                continue  # gaps in the right line
+            cv2.line(img, (int(round(x[yy])) - 4, yy), (int(round(x[yy])) + 4, yy), 1)
+    return img
+
+
+@pytest.mark.parametrize("radius", [400.0, 1000.0, 3000.0])
+@pytest.mark.parametrize("shift", [-30.0, 0.0, 25.0])
+def test_radius_and_offset_on_a_synthetic_road(radius, shift):
+    view = identity_view()
+    lane = LaneTracker(view).update(synthetic_road(radius, shift))
+    assert lane is not None and lane.fresh
+    assert lane.radius_m == pytest.approx(radius, rel=0.1)
+    # the camera is at x = 320; the lane centre at 320 + shift: the car is left of centre for shift > 0
+    assert lane.offset_m == pytest.approx(-shift * XM, abs=0.05)
+
+
+def test_straight_road_is_very_flat():
+    r, off = lane_measures(np.array([0, 0, 160.0]), np.array([0, 0, 480.0]), identity_view())
+    assert r == float("inf") and off == pytest.approx(0.0)
+
+
+def test_implausible_width_is_not_a_lane():
+    view = identity_view()
+    assert LaneTracker(view).update(synthetic_road(1000, 0, width_px=120)) is None  # 1.4 m: not a lane
+
+
+def test_bad_frames_keep_the_last_fit_then_nothing():
+    view = identity_view()
+    tracker = LaneTracker(view, max_misses=3)
+    good = tracker.update(synthetic_road(800, 0))
+    assert good is not None and good.fresh
+    empty = np.zeros((H, W), np.uint8)
+    for _ in range(3):
+        kept = tracker.update(empty)
+        assert kept is not None and not kept.fresh
+        np.testing.assert_allclose(kept.left_fit, good.left_fit)
+    assert tracker.update(empty) is None  # after max_misses: no lane
+    frame = np.zeros((H, W, 3), np.uint8)
+    drawn = draw_lane(frame, None, view)
+    assert drawn[100:, :].max() == 0  # no polygon, only the "not found" text at the top
+    back = tracker.update(synthetic_road(800, 0))
+    assert back is not None and back.fresh
+
+
+def test_smoothing_averages_good_fits():
+    view = identity_view()
+    tracker = LaneTracker(view, smooth=2)
+    tracker.update(synthetic_road(1000, 0))
+    lane = tracker.update(synthetic_road(1000, 20))
+    assert lane.offset_m == pytest.approx(-10 * XM, abs=0.05)  # the mean of 0 and 20 px
+
+
+def test_distance_from_the_box_bottom():
+    view = identity_view()
+    boxes = Detections([[300, 100, 340, H - 100], [300, 100, 340, H]], track_id=[0, 1])
+    out = DistanceTracker(view, fps=25).update(boxes)
+    np.testing.assert_allclose(out.data["distance_m"], [100 * YM, 0.0], atol=1e-6)
+    assert np.isnan(out.data["relative_speed_mps"]).all()  # one frame: no speed yet
+
+
+def test_relative_speed_from_successive_distances():
+    view = identity_view()
+    tracker = DistanceTracker(view, fps=25, min_points=3)
+    speeds = []
+    for f in range(10):
+        bottom = H - 100 - f  # 1 px = 0.1 m farther each frame: 2.5 m/s pulling away
+        out = tracker.update(Detections([[300, 50, 340, bottom]], track_id=[7], frame=f))
+        speeds.append(out.data["relative_speed_mps"][0])
+    assert np.isnan(speeds[:2]).all()
+    np.testing.assert_allclose(speeds[2:], 2.5, rtol=1e-6)
+
+
+def test_distance_above_the_horizon_is_nan():
+    src = [[200, 700], [600, 450], [680, 450], [1100, 700]]
+    dst = [[160, 360], [160, 0], [480, 0], [480, 360]]
+    view = BirdsEye(src, dst, (1280, 720), (640, 360), XM, YM)
+    d = view.ground_distance([[640, 700], [640, 500], [640, 300]])
+    assert 0 <= d[0] < d[1] and np.isnan(d[2])
+
+
+# --- the CSVs ----------------------------------------------------------------------------------
+
+
+def test_boxes_csv_with_distance_columns_round_trip(tmp_path):
+    d = Detections(
+        [[1, 2, 30, 40], [5, 6, 70, 80]],
+        score=[1.5, 2.25],
+        track_id=[0, 1],
+        frame=[3, 3],
+        data={"distance_m": [12.345, np.nan], "relative_speed_mps": [np.nan, -1.5]},
+    )
+    path = write_boxes_csv(tmp_path / "b.csv", d)
+    lines = path.read_text().splitlines()
+    assert lines[0] == BOXES_CSV_HEADER + ",distance_m,relative_speed_mps"
+    assert lines[1] == "3,1,2,30,40,0,1.5000,12.35," and lines[2] == "3,5,6,70,80,1,2.2500,,-1.50"
+    back = read_boxes_csv(path)
+    np.testing.assert_array_equal(back.xyxy, d.xyxy)
+    np.testing.assert_allclose(back.data["distance_m"], [12.35, np.nan])
+    np.testing.assert_allclose(back.data["relative_speed_mps"], [np.nan, -1.5])
+
+
+def test_boxes_csv_without_distances_is_unchanged(tmp_path):
+    d = Detections([[1, 2, 30, 40]], score=[1.5], track_id=[4], frame=[2], data={"scale_index": [1]})
+    path = write_boxes_csv(tmp_path / "b.csv", d)
+    assert path.read_text() == "frame,x1,y1,x2,y2,track_id,score\n2,1,2,30,40,4,1.5000\n"
+    assert read_boxes_csv(path).data == {}
+
+
+def test_boxes_csv_bad_distance_field(tmp_path):
+    from vehicle_detection.errors import InputError
+
+    p = tmp_path / "b.csv"
+    p.write_text(BOXES_CSV_HEADER + ",distance_m,relative_speed_mps\n0,1,2,30,40,0,1.0,far,\n")
+    with pytest.raises(InputError, match="line 2: distance_m 'far'"):
+        read_boxes_csv(p)
+    p.write_text(BOXES_CSV_HEADER + ",distance_m,relative_speed_mps\n0,1,2,30,40,0,1.0\n")
+    with pytest.raises(InputError, match="expected 9 fields"):
+        read_boxes_csv(p)
+
+
+def test_lanes_csv(tmp_path):
+    p = write_lanes_csv(tmp_path / "l.csv", [(0, 812.34, -0.3012), (1, None, None), (2, float("nan"), 0.1)])
+    assert p.read_text() == "frame,curvature_m,offset_m\n0,812.3,-0.301\n1,,\n2,,0.100\n"
+
+
+# --- the real frames ---------------------------------------------------------------------------
+
+DATA = shared_data_dir()
+needs_data = pytest.mark.skipif(
+    not (DATA / "camera_cal").is_dir() or not (DATA / "lanes").is_dir(),
+    reason=f"no chessboard photos or straight-road frames under {DATA}",
+)
+
+
+@pytest.fixture(scope="module")
+def real_camera():
+    from vehicle_detection.camera import calibrate
+    from vehicle_detection.images import read_image
+
+    cam = calibrate(DATA / "camera_cal")
+    frames = [read_image(DATA / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)]
+    return cam.replace(birds_eye=birds_eye_from_straight(frames, cam)), frames
+
+
+@needs_data
+def test_birds_eye_from_the_straight_frames(real_camera):
+    cam, frames = real_camera
+    view = cam.birds_eye
+    assert view.xm_per_px == pytest.approx(3.7 / 320)
+    assert 0.06 < view.ym_per_px < 0.13  # 22 to 47 m of road in the 360 warped rows
+    for f in frames:
+        lane = LaneTracker(view).step(cam.undistort(f))
+        assert lane is not None and lane.radius_m > 1500 and abs(lane.offset_m) < 0.5
+
+
+@needs_data
+def test_detect_with_lanes_on_the_test_video(real_camera, tmp_path):
+    from vehicle_detection.cli import main
+
+    cam, _ = real_camera
+    cam_path = cam.save(tmp_path / "camera.json")
+    lanes_csv, boxes = tmp_path / "L.csv", tmp_path / "B.csv"
+    code = main([
+        "detect", str(REPO / "test_video.mp4"), "--camera", str(cam_path), "--lanes-csv", str(lanes_csv),
+        "--boxes", str(boxes), "--out", str(tmp_path / "o.mp4"), "--no-progress",
+    ])
+    assert code == 0
+    rows = list(csv.DictReader(lanes_csv.open()))
+    assert len(rows) == 38
+    radius = np.array([float(r["curvature_m"]) if r["curvature_m"] else np.nan for r in rows])
+    offset = np.array([float(r["offset_m"]) if r["offset_m"] else np.nan for r in rows])
+    assert np.mean((radius > 200) & (radius < 10_000)) > 0.8
+    assert np.nanmax(np.abs(offset)) < 1.0
+    table = read_boxes_csv(boxes)
+    dist = table.data["distance_m"]
+    assert len(table) and np.all((dist[np.isfinite(dist)] > 3) & (dist[np.isfinite(dist)] < 100))
