@@ -148,6 +148,9 @@ class Detector:
         searches are searched around the tracks live when the frame is submitted (the tracker
         then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
         """
+        from ._warmup import compile_search_kernels
+
+        compile_search_kernels(self.model)  # on a fresh install, on both cores
         tracker = tracker or self.new_tracker()
         submitted = tracker.state.frame_index
         lag = max(0, self.config.tracker.min_hits - 1)

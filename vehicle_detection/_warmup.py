@@ -1,0 +1,126 @@
+"""Compile the search kernels on both cores when the numba cache is cold (a fresh install).
+
+numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
+kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
+process that compiles the HOG cell kernel and the two colour kernels into the cache while this
+process compiles the block and scoring kernels; this process then loads the helper's kernels
+from the cache. Each side runs the real :func:`~vehicle_detection.search.search` on a small
+blank frame with the other side's kernels replaced by no-ops, so the kernels are compiled for
+exactly the argument types of a real search. On a warm cache nothing happens here (the kernels
+load on first use). The results never depend on this: a kernel the helper did not provide in
+time is compiled here as usual.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from . import _jit
+
+__all__ = ["compile_search_kernels"]
+
+_DONE = threading.Event()
+_LOCK = threading.Lock()
+# (module the search calls it through, name, cache file prefix)
+_HELPER_KERNELS = (
+    ("features", "_region_variants", "features._region_variants-"),
+    ("search", "_colour_sums", "search._colour_sums-"),
+    ("search", "_score_colour", "search._score_colour-"),
+)
+_MAIN_KERNELS = (
+    ("search", "_block_maps", "features._block_maps-"),
+    ("search", "_score_hog", "search._score_hog-"),
+)
+
+
+def _module(name: str):
+    from . import features, search
+
+    return {"features": features, "search": search}[name]
+
+
+def _cached(kernels) -> bool:
+    """Whether the cache folder holds an index for every one of ``kernels`` (a warm cache)."""
+    if _jit.CACHE_DIR is None:
+        return True  # no cache: nothing to share between processes
+    names = set()
+    for root, _, files in os.walk(_jit.CACHE_DIR):
+        names.update(files)
+    for _, _, prefix in kernels:
+        if not any(n.startswith(prefix) and n.endswith(".nbi") for n in names):
+            return False
+    return True
+
+
+def _zero_last(*args) -> None:
+    """A no-op kernel that leaves its output (the last argument) zero, not uninitialised."""
+    args[-1].fill(0)
+
+
+@contextmanager
+def _without(kernels):
+    """Replace ``kernels`` by no-ops for the duration (single-threaded use only)."""
+    saved = []
+    for mod, fn, _ in kernels:
+        m = _module(mod)
+        saved.append((m, fn, getattr(m, fn)))
+        setattr(m, fn, _zero_last)
+    try:
+        yield
+    finally:
+        for m, fn, f in saved:
+            setattr(m, fn, f)
+
+
+def _compile(model, skip) -> None:
+    from .search import search
+
+    frame = np.zeros((720, 320, 3), np.uint8)
+    with _without(skip):
+        search(frame, model)
+
+
+def compile_search_kernels(model) -> None:
+    """Before the first search of a run: on a cold cache, compile the kernels in two processes.
+
+    Call from the main thread before any search thread starts; later calls return at once.
+    """
+    with _LOCK:
+        if _DONE.is_set():
+            return
+        _DONE.set()
+        if _cached(_HELPER_KERNELS + _MAIN_KERNELS):
+            return
+        env = dict(os.environ)
+        env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
+        package_parent = str(Path(__file__).resolve().parents[1])  # this very package, not another install
+        env["PYTHONPATH"] = os.pathsep.join([package_parent] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        try:
+            helper = subprocess.Popen(
+                [sys.executable, "-c", "from vehicle_detection._warmup import _helper; _helper()"],
+                env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            )
+        except OSError:
+            return  # compiled here on first use
+        try:
+            _compile(model, _HELPER_KERNELS)
+            helper.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            pass
+        finally:
+            if helper.poll() is None:
+                helper.kill()
+                helper.wait()
+
+
+def _helper() -> None:
+    from .classifier import load_default_model
+
+    _compile(load_default_model(), _MAIN_KERNELS)
