@@ -643,7 +643,7 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
     x2 = x1 + side * band.sx
     y1 = band.y0 + band.rows * ppc * band.sy  # (n_rows,)
     y2 = y1 + side * band.sy
-    edge = (x1 < plan.edge_width) | (x2 > work_width - plan.edge_width)
+    edge = ((x1 < plan.edge_width) | (x2 > work_width - plan.edge_width)) & (plan.edge_width > 0)
     top = min(s.y_start for s in plan.scales) + plan.y_shift
     horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
     mask = edge[None, :] | horizon[:, None]
