@@ -126,7 +126,8 @@ class Detector:
     def step(self, frame: np.ndarray, tracker: Tracker) -> Detections:
         """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill)."""
         around = self._scheduled_around(tracker, tracker.state.frame_index)
-        return self.track_step(frame.shape, self.windows(frame, around), tracker)
+        wins = self.windows(frame) if around is None else self.windows(frame, around)
+        return self.track_step(frame.shape, wins, tracker)
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""
@@ -176,7 +177,8 @@ class Detector:
                 for frame in frames:
                     around = self._scheduled_around(tracker, submitted)
                     submitted += 1
-                    pending.append((frame, pool.submit(self.windows, frame, around)))
+                    args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
+                    pending.append((frame, pool.submit(self.windows, *args)))
                     if len(pending) > workers:
                         f, fut = pending.popleft()
                         advance(f, fut.result())
