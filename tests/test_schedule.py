@@ -25,7 +25,7 @@ def _key(d: Detections):
 def _claimed(windows: Detections, plan: SearchPlan, width: int, around: np.ndarray) -> np.ndarray:
     """The windows the docs of SearchPlan promise for a between-frames search, from the boxes alone."""
     x1, y1, x2, y2 = windows.xyxy.T
-    edge = (x1 < plan.edge_width) | (x2 > width - plan.edge_width)
+    edge = (x2 <= plan.edge_width) | (x1 >= width - plan.edge_width)
     top = min(s.y_start for s in plan.scales)
     horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
     near = np.zeros(len(windows), bool)
@@ -56,7 +56,8 @@ def test_between_frames_search_without_tracks_or_regions(default_model, test_fra
     full = search(frame, default_model, PLAN, all_windows=True)
     edges = search(frame, default_model, dataclasses.replace(PLAN, horizon_height=0), all_windows=True, around=np.zeros((0, 4)))
     x1, x2 = full.xyxy[:, 0], full.xyxy[:, 2]
-    assert _key(edges) == _key(full[(x1 < 160) | (x2 > frame.shape[1] - 160)])
+    assert 0 < len(edges) < len(full)
+    assert _key(edges) == _key(full[(x2 <= 160) | (x1 >= frame.shape[1] - 160)])
 
 
 class _Spy(Detector):
