@@ -7,7 +7,8 @@ process compiles the block and scoring kernels; this process then loads the help
 from the cache. Each side runs the real :func:`~vehicle_detection.search.search` on a small
 blank frame with the other side's kernels replaced by no-ops, so the kernels are compiled for
 exactly the argument types of a real search. On a warm cache nothing happens here (the kernels
-load on first use). The results never depend on this: a kernel the helper did not provide in
+load on first use), nor when the machine has no idle core (1-minute load average above the
+number of cores minus one): there the helper would only compete. The results never depend on this: a kernel the helper did not provide in
 time is compiled here as usual.
 """
 
@@ -64,6 +65,16 @@ def _zero_last(*args) -> None:
     args[-1].fill(0)
 
 
+def _idle_core() -> bool:
+    """Whether a second core is free for the helper (on a busy machine it would only compete)."""
+    cores = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # Windows
+        return cores >= 2
+    return cores >= 2 and load <= cores - 1
+
+
 @contextmanager
 def _without(kernels):
     """Replace ``kernels`` by no-ops for the duration (single-threaded use only)."""
@@ -96,7 +107,7 @@ def compile_search_kernels(model) -> None:
         if _DONE.is_set():
             return
         _DONE.set()
-        if _cached(_HELPER_KERNELS + _MAIN_KERNELS):
+        if not _idle_core() or _cached(_HELPER_KERNELS + _MAIN_KERNELS):
             return
         env = dict(os.environ)
         env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
