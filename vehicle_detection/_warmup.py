@@ -8,8 +8,8 @@ from the cache. Each side runs the real :func:`~vehicle_detection.search.search`
 blank frame with the other side's kernels replaced by no-ops, so the kernels are compiled for
 exactly the argument types of a real search. On a warm cache nothing happens here (the kernels
 load on first use), nor when the machine has no idle core (1-minute load average above the
-number of cores minus one): there the helper would only compete. The results never depend on this: a kernel the helper did not provide in
-time is compiled here as usual.
+number of cores minus one): there the helper would only compete. The results never depend on
+this: a kernel the helper did not provide in time is compiled here as usual.
 """
 
 from __future__ import annotations
