@@ -42,9 +42,9 @@ _MAIN_KERNELS = (
 
 
 def _module(name: str):
-    from . import features, search
+    import importlib
 
-    return {"features": features, "search": search}[name]
+    return importlib.import_module(f"{__package__}.{name}")  # the module, not the package's lazy names
 
 
 def _cached(kernels) -> bool:
