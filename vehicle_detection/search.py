@@ -560,9 +560,9 @@ _MAX_BUFFERS = 32
 def _buffer(name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
     """A work array reused across frames (per thread): no page faults per frame.
 
-    The most recently used ``_MAX_BUFFERS`` are kept: the whole-frame bands come back every
-    frame, while the crops of a scheduled search change shape with the tracks (kept them all,
-    memory would grow with the video's length).
+    Only whole bands use it (their shapes come back every frame; the crops of a scheduled
+    search change shape with the tracks and are not kept). At most ``_MAX_BUFFERS`` are kept,
+    the most recently used, so memory stays bounded whatever plans are searched.
     """
     cache = getattr(_BUFFERS, "arrays", None)
     if cache is None:
@@ -605,7 +605,9 @@ def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
     return kw
 
 
-def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
+def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True) -> np.ndarray:
+    """Margins of every window of ``band``; ``reuse``: work arrays kept for the next frame (whole bands)."""
+    buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
     cfg = model.config
     folded = _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
@@ -613,19 +615,19 @@ def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
     hog_pixels = hog_input(conv, cfg)
     n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
     n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
-    variants = _buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
+    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
     region_hog(hog_pixels, cfg, out=variants)
     need_rows, need_cols = _needed_blocks(band.rows, band.cols, nbw, n_br, n_bc)
     # Normalised blocks in float32: they fit the cache and halve the memory traffic of scoring.
-    maps = _buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size), np.float32)
+    maps = buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size), np.float32)
     for ch, v in enumerate(variants):
         _block_maps(v, cpb, _MAP_CLASSES, need_rows, need_cols, maps[ch])
     out = np.empty((len(band.rows), len(band.cols)))
     _score_hog(variants, maps, folded.hog, folded.hog32, cpb, band.rows, band.cols, out)
     if cfg.spatial_size or cfg.hist_bins:
         f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
-        bin_sums = _buffer("bin_sums", (conv.shape[0] // f, conv.shape[1] // f, 3))
-        cell_scores = _buffer("cell_scores", (n_cr, n_cc))
+        bin_sums = buffer("bin_sums", (conv.shape[0] // f, conv.shape[1] // f, 3))
+        cell_scores = buffer("cell_scores", (n_cr, n_cc))
         _colour_sums(conv, f, ppc, folded.hist_lut, bin_sums, cell_scores)
         _score_colour(bin_sums, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
                       bool(cfg.spatial_size), bool(cfg.hist_bins), out)
@@ -681,7 +683,7 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -
         image = band.image[top : band.rows[r1 - 1] * ppc + side, left : band.cols[b - 1] * ppc + side]
         sub = _Band(np.ascontiguousarray(image), 0, 0, band.sx, band.sy,
                     band.rows[r0:r1] - band.rows[r0], band.cols[a:b] - band.cols[a])
-        out[r0:r1, a:b] = _score_band(sub, model).reshape(r1 - r0, b - a)
+        out[r0:r1, a:b] = _score_band(sub, model, reuse=False).reshape(r1 - r0, b - a)  # shapes vary: not kept
     out[~mask] = -np.inf
     return out.ravel()
 
