@@ -162,6 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
                    help="where the road meets the horizon, as a fraction of the frame height from the top "
                    "(default: the model's search plan, made for the project camera: 0.56)")
+    p.add_argument("--full-search-every", type=_positive_int, default=None, metavar="N",
+                   help="videos: search whole frames every N frames, in between only the frame edges, the horizon "
+                   "and around tracked vehicles (default: the model's plan, 1: every frame whole)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs (never the input)")
     p.add_argument("--preset", default="ultrafast", choices=X264_PRESETS, metavar="PRESET",
                    help="x264 speed preset for videos: %(choices)s (default %(default)s: fastest, larger files)")
@@ -380,7 +383,7 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
-def _load_detector(model_path, horizon: float | None = None):
+def _load_detector(model_path, horizon: float | None = None, full_search_every: int | None = None):
     from .classifier import VehicleClassifier, load_default_model
     from .detector import Detector
 
@@ -388,6 +391,8 @@ def _load_detector(model_path, horizon: float | None = None):
     config = model.detector_config
     if horizon is not None:
         config = config.replace(plan=dataclasses.replace(config.plan, horizon=horizon))
+    if full_search_every is not None:
+        config = config.replace(plan=dataclasses.replace(config.plan, full_search_every=full_search_every))
     return Detector(model, config)
 
 
@@ -442,7 +447,7 @@ def _cmd_detect(args) -> int:
             check_image_output(o)  # e.g. .webp without a WebP encoder
             check_output_path(o, overwrite=args.overwrite, inputs=inputs)
         check_output_path(boxes, overwrite=args.overwrite, inputs=inputs)
-    detector = _load_detector(args.model, args.horizon)
+    detector = _load_detector(args.model, args.horizon, args.full_search_every)
     t = time.perf_counter()
     # All outputs of the run are committed together at the end: a run that fails or is stopped
     # part-way (a corrupt image, Ctrl-C, SIGTERM, a full disk) leaves no new file, no .partial
