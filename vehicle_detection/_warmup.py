@@ -2,14 +2,15 @@
 
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
 kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
-process that compiles the HOG cell kernel and the two colour kernels into the cache while this
-process compiles the block and scoring kernels; this process then loads the helper's kernels
-from the cache. Each side runs the real :func:`~vehicle_detection.search.search` on a small
-blank frame with the other side's kernels replaced by no-ops, so the kernels are compiled for
-exactly the argument types of a real search. On a warm cache nothing happens here (the kernels
-load on first use), nor when the machine has no idle core (1-minute load average above the
-number of cores minus one): there the helper would only compete. The results never depend on
-this: a kernel the helper did not provide in time is compiled here as usual.
+process that compiles the HOG scoring kernel and the two colour kernels into the cache while this
+process compiles the HOG cell and block kernels (the first half of a real band's scoring, on a
+blank frame, so with exactly the argument types of a real search); this process then loads the
+helper's kernels from the cache. The helper runs a real search on a blank frame with this
+process's kernels replaced by no-ops (in the helper only: nothing is replaced here, so a search
+running in another thread meanwhile is unaffected). On a warm cache nothing happens here (the
+kernels load on first use), nor when the machine has no idle core (1-minute load average above
+the number of cores minus one): there the helper would only compete. The results never depend
+on this: a kernel the helper did not provide in time is compiled here as usual.
 """
 
 from __future__ import annotations
@@ -31,15 +32,14 @@ _DONE = threading.Event()
 _LOCK = threading.Lock()
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
-    ("features", "_region_variants", "features._region_variants-"),
+    ("search", "_score_hog", "search._score_hog-"),
     ("search", "_colour_sums", "search._colour_sums-"),
     ("search", "_score_colour", "search._score_colour-"),
 )
 _MAIN_KERNELS = (
+    ("features", "_region_variants", "features._region_variants-"),
     ("search", "_block_maps", "features._block_maps-"),
-    ("search", "_score_hog", "search._score_hog-"),
 )
-
 
 def _module(name: str):
     import importlib
@@ -77,7 +77,7 @@ def _idle_core() -> bool:
 
 @contextmanager
 def _without(kernels):
-    """Replace ``kernels`` by no-ops for the duration (single-threaded use only)."""
+    """Replace ``kernels`` by no-ops for the duration (the helper process only: never in a user's process)."""
     saved = []
     for mod, fn, _ in kernels:
         m = _module(mod)
@@ -90,18 +90,31 @@ def _without(kernels):
             setattr(m, fn, f)
 
 
-def _compile(model, skip) -> None:
-    from .search import search
+def _blank_band(model):
+    from .search import _band, _working_frame
 
-    frame = np.zeros((720, 320, 3), np.uint8)
-    with _without(skip):
-        search(frame, model)
+    plan = model.detector_config.plan
+    work, _ = _working_frame(np.zeros((720, 320, 3), np.uint8), plan)
+    for s in plan.scales:
+        band = _band(work, s, model.config, plan.overhang, plan.y_shift)
+        if band is not None:
+            return band
+    return None
+
+
+def _compile_main(model) -> None:
+    """This process's half: the HOG cell and block kernels, by the real code path, nothing replaced."""
+    from .search import _score_band
+
+    band = _blank_band(model)
+    if band is not None:
+        _score_band(band, model, reuse=False, hog_only=True)
 
 
 def compile_search_kernels(model) -> None:
     """Before the first search of a run: on a cold cache, compile the kernels in two processes.
 
-    Call from the main thread before any search thread starts; later calls return at once.
+    Later calls return at once; nothing of this process is replaced, so any thread may search meanwhile.
     """
     with _LOCK:
         if _DONE.is_set():
@@ -121,7 +134,7 @@ def compile_search_kernels(model) -> None:
         except OSError:
             return  # compiled here on first use
         try:
-            _compile(model, _HELPER_KERNELS)
+            _compile_main(model)
             helper.wait(timeout=60)
         except subprocess.TimeoutExpired:
             pass
@@ -132,6 +145,9 @@ def compile_search_kernels(model) -> None:
 
 
 def _helper() -> None:
+    """The helper process's half: a real search of a blank frame with the main half's kernels as no-ops."""
     from .classifier import load_default_model
+    from .search import search
 
-    _compile(load_default_model(), _MAIN_KERNELS)
+    with _without(_MAIN_KERNELS):  # this process only
+        search(np.zeros((720, 320, 3), np.uint8), load_default_model())

@@ -605,8 +605,11 @@ def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
     return kw
 
 
-def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True) -> np.ndarray:
-    """Margins of every window of ``band``; ``reuse``: work arrays kept for the next frame (whole bands)."""
+def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_only: bool = False) -> np.ndarray | None:
+    """Margins of every window of ``band``; ``reuse``: work arrays kept for the next frame (whole bands).
+
+    ``hog_only`` stops after the HOG cells and blocks and returns None (compiling those kernels).
+    """
     buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
     cfg = model.config
     folded = _kernel_weights(model)
@@ -622,6 +625,8 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True) -> np
     maps = buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size), np.float32)
     for ch, v in enumerate(variants):
         _block_maps(v, cpb, _MAP_CLASSES, need_rows, need_cols, maps[ch])
+    if hog_only:
+        return None
     out = np.empty((len(band.rows), len(band.cols)))
     _score_hog(variants, maps, folded.hog, folded.hog32, cpb, band.rows, band.cols, out)
     if cfg.spatial_size or cfg.hist_bins:
