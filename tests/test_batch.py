@@ -95,6 +95,15 @@ def test_a_bad_input_is_named_and_the_others_go_on(videos, tmp_path, capsys):
     assert main(["detect", str(bad), "--out-dir", str(out), "--no-video"]) == 3
 
 
+@pytest.mark.parametrize("option", [["--camera", "camera.json"], ["--lanes"], ["--lanes-csv", "l.csv"], ["--full-search-every", "5"]])
+def test_single_input_options_are_refused_in_a_batch(videos, tmp_path, capsys, option):
+    out = tmp_path / "out"
+    assert main(["detect", str(videos), "--out-dir", str(out), "--no-video", *option]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vehicle-detection: error: --camera, --lanes, --lanes-csv and --full-search-every apply to one input at a time, not to a batch"]
+    assert not out.exists()
+
+
 def test_frame_range_keeps_decoded_indexes(tmp_path):
     import vehicle_detection as vd
 

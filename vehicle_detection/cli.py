@@ -204,6 +204,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
                    help="where the road meets the horizon, as a fraction of the frame height from the top "
                    "(default: the model's search plan, made for the project camera: 0.56)")
+    p.add_argument("--full-search-every", type=_positive_int, default=None, metavar="N",
+                   help="videos: search whole frames every N frames, in between only the frame edges, the horizon "
+                   "and around tracked vehicles (default: the model's plan, 1: every frame whole)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs (never the input)")
     p.add_argument("--preset", default="ultrafast", choices=X264_PRESETS, metavar="PRESET",
                    help="x264 speed preset for videos: %(choices)s (default %(default)s: fastest, larger files)")
@@ -498,7 +501,7 @@ def _load_camera(path):
     return Camera.load(path)
 
 
-def _load_detector(model_path, horizon: float | None = None):
+def _load_detector(model_path, horizon: float | None = None, full_search_every: int | None = None):
     from .classifier import VehicleClassifier, load_default_model
     from .detector import Detector
 
@@ -506,6 +509,8 @@ def _load_detector(model_path, horizon: float | None = None):
     config = model.detector_config
     if horizon is not None:
         config = config.replace(plan=dataclasses.replace(config.plan, horizon=horizon))
+    if full_search_every is not None:
+        config = config.replace(plan=dataclasses.replace(config.plan, full_search_every=full_search_every))
     return Detector(model, config)
 
 
@@ -565,8 +570,8 @@ def _cmd_detect_many(args) -> int:
 
     if args.out or args.boxes:
         raise UsageError("--out and --boxes name the outputs of one input; in a batch use --out-dir (default names)")
-    if args.camera or args.lanes or args.lanes_csv:
-        raise UsageError("--camera, --lanes and --lanes-csv apply to one input at a time, not to a batch")
+    if args.camera or args.lanes or args.lanes_csv or args.full_search_every is not None:
+        raise UsageError("--camera, --lanes, --lanes-csv and --full-search-every apply to one input at a time, not to a batch")
     formats = [f.strip() for f in args.format.split(",") if f.strip()]
     if args.table is not None and Path(args.table).suffix.lower() != ".parquet":
         raise UsageError(f"--table {args.table}: the table of all inputs is a Parquet file (.parquet)")
@@ -659,7 +664,7 @@ def _cmd_detect_one(args) -> int:
             check_image_output(o)  # e.g. .webp without a WebP encoder
             check_output_path(o, overwrite=args.overwrite, inputs=inputs)
         check_output_path(boxes, overwrite=args.overwrite, inputs=inputs)
-    detector = _load_detector(args.model, args.horizon)
+    detector = _load_detector(args.model, args.horizon, args.full_search_every)
     t = time.perf_counter()
     # All outputs of the run are committed together at the end: a run that fails or is stopped
     # part-way (a corrupt image, Ctrl-C, SIGTERM, a full disk) leaves no new file, no .partial

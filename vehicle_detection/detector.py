@@ -60,15 +60,29 @@ class Detector:
     def __repr__(self) -> str:
         return f"Detector({self.model!r}, {self.config!r})"
 
-    def windows(self, frame: np.ndarray) -> Detections:
+    def windows(self, frame: np.ndarray, around: np.ndarray | None = None) -> Detections:
         """Windows of one RGB ``uint8`` frame whose margin exceeds the plan's threshold.
+
+        Parameters
+        ----------
+        around : ndarray (n, 4), optional
+            None searches the whole plan; boxes (live tracks) search only between full
+            searches' regions (see :class:`~vehicle_detection.search.SearchPlan`).
 
         Returns
         -------
         Detections
             The windows, their SVM margins as ``score`` and ``data["scale_index"]``.
         """
-        return search(frame, self.model, self.config.plan)
+        return search(frame, self.model, self.config.plan, around=around)
+
+    def _scheduled_around(self, tracker: Tracker, frame_index: int) -> np.ndarray | None:
+        """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes."""
+        every = self.config.plan.full_search_every
+        if every <= 1 or frame_index % every == 0:
+            return None
+        tracks = tracker.state.tracks
+        return np.stack([t.box for t in tracks]) if tracks else np.zeros((0, 4))
 
     def _tracker_input(self, windows: Detections) -> Detections:
         """Windows with their margin above the plan's threshold as score (what the tracker takes)."""
@@ -111,7 +125,9 @@ class Detector:
 
     def step(self, frame: np.ndarray, tracker: Tracker) -> Detections:
         """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill)."""
-        return self.track_step(frame.shape, self.windows(frame), tracker)
+        around = self._scheduled_around(tracker, tracker.state.frame_index)
+        wins = self.windows(frame) if around is None else self.windows(frame, around)
+        return self.track_step(frame.shape, wins, tracker)
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""
@@ -128,8 +144,16 @@ class Detector:
         confirmed, its boxes on the held-back frames before confirmation are filled in, so a
         vehicle is reported from the frame it appeared, and still no track is born from a
         single frame.
+
+        With a search schedule (``plan.full_search_every > 1``), the frames between full
+        searches are searched around the tracks live when the frame is submitted (the tracker
+        then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
         """
+        from ._warmup import compile_search_kernels
+
+        compile_search_kernels(self.model)  # on a fresh install, on both cores
         tracker = tracker or self.new_tracker()
+        submitted = tracker.state.frame_index
         lag = max(0, self.config.tracker.min_hits - 1)
         held: deque = deque()  # [frame, index, detections], oldest first
 
@@ -151,7 +175,10 @@ class Detector:
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 for frame in frames:
-                    pending.append((frame, pool.submit(self.windows, frame)))
+                    around = self._scheduled_around(tracker, submitted)
+                    submitted += 1
+                    args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
+                    pending.append((frame, pool.submit(self.windows, *args)))
                     if len(pending) > workers:
                         f, fut = pending.popleft()
                         advance(f, fut.result())

@@ -180,9 +180,52 @@ def match_boxes(iou: ArrayLike, threshold: float) -> tuple[np.ndarray, np.ndarra
     valid = iou >= threshold
     if not valid.any():
         return empty, empty
+    bonus = float(min(iou.shape) + 1)
+    weights = np.where(valid, bonus + iou, 0.0)
+    small = _match_small(weights, valid)
+    if small is not None:
+        return small
     from scipy.optimize import linear_sum_assignment  # imported on first use: 0.3 s at start-up
 
-    bonus = float(min(iou.shape) + 1)
-    rows, cols = linear_sum_assignment(np.where(valid, bonus + iou, 0.0), maximize=True)
+    rows, cols = linear_sum_assignment(weights, maximize=True)
     keep = valid[rows, cols]
     return rows[keep].astype(np.intp), cols[keep].astype(np.intp)
+
+
+_SMALL_ASSIGNMENTS = 5040  # 7 x 7
+
+
+def _match_small(weights: np.ndarray, valid: np.ndarray):
+    """The maximum-weight matching of a small matrix by trying every assignment, or None.
+
+    None (use scipy's solver) when there are too many assignments, or when the best total is
+    tied, within rounding, by an assignment with other valid pairs: then the choice is the
+    solver's, and the result is always the one ``linear_sum_assignment`` gives. A tracker's
+    matrices are a few tracks by a few blobs, so scipy is rarely imported (a quarter of a
+    second at start-up).
+    """
+    import itertools
+    import math
+
+    transpose = weights.shape[0] > weights.shape[1]
+    w, v = (weights.T, valid.T) if transpose else (weights, valid)
+    n, m = w.shape
+    if math.perm(m, n) > _SMALL_ASSIGNMENTS:
+        return None
+    perms = np.array(list(itertools.permutations(range(m), n)), np.intp).reshape(-1, n)
+    rows = np.arange(n)
+    totals = w[rows, perms].sum(axis=1)
+    best = totals.max()
+    near = np.flatnonzero(totals >= best - 1e-9 * max(1.0, abs(best)))
+    chosen = perms[near[0]]
+    keep = v[rows, chosen]
+    for k in near[1:]:
+        other = perms[k]
+        other_keep = v[rows, other]
+        if not (np.array_equal(keep, other_keep) and np.array_equal(chosen[keep], other[other_keep])):
+            return None
+    r, c = rows[keep], chosen[keep]
+    if transpose:
+        order = np.argsort(c, kind="stable")
+        r, c = c[order], r[order]
+    return r.astype(np.intp), c.astype(np.intp)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import threading
 import weakref
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -123,6 +124,18 @@ class SearchPlan:
         bands are moved up or down together so that the highest starts there. None keeps them
         where they are written (the project camera's horizon, 400 / 720). Another camera,
         mounted higher or tilted, sees its horizon elsewhere.
+    full_search_every : int
+        Search schedule over video frames (:class:`~vehicle_detection.detector.Detector`): every
+        ``full_search_every``-th frame is searched whole; the frames in between only where a
+        vehicle can appear or be: windows lying within the ``edge_width`` columns at the left
+        or right frame edge (part of them may overhang it), windows lying inside the ``horizon_height`` rows below the top
+        of the bands (the horizon, where distant vehicles are small), and windows overlapping a
+        live track's box grown by ``track_margin`` times its width and height on each side.
+        1 (the default) searches every frame whole. Single images are always searched whole.
+    edge_width, horizon_height : int
+        In pixels at the reference height.
+    track_margin : float
+        Fraction of a track box's size added on each side.
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
@@ -130,9 +143,20 @@ class SearchPlan:
     reference_height: int = 720
     overhang: float = 0.5
     horizon: float | None = None
+    full_search_every: int = 1
+    edge_width: int = 160
+    horizon_height: int = 96
+    track_margin: float = 0.5
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
+        for name in ("full_search_every", "edge_width", "horizon_height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "full_search_every" else 0):
+                raise ValueError(f"{name} must be an integer >= {1 if name == 'full_search_every' else 0}, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if not 0.0 <= self.track_margin <= 10.0:
+            raise ValueError(f"track_margin must be in [0, 10], got {self.track_margin}")
         if not self.scales:
             raise ValueError("a search plan needs at least one scale")
         if self.reference_height < 64:
@@ -156,15 +180,29 @@ class SearchPlan:
             "reference_height": self.reference_height,
             "overhang": self.overhang,
             "horizon": self.horizon,
+            "full_search_every": self.full_search_every,
+            "edge_width": self.edge_width,
+            "horizon_height": self.horizon_height,
+            "track_margin": self.track_margin,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> SearchPlan:
-        """The inverse of :meth:`to_dict`; a malformed plan raises ``ValueError``."""
+        """The inverse of :meth:`to_dict`; a malformed plan raises ``ValueError``.
+
+        Plans saved before the search schedule existed (without its four fields) load with the
+        defaults: every frame searched whole.
+        """
         try:
-            if set(d) != {"scales", "threshold", "reference_height", "overhang", "horizon"}:
+            required = {"scales", "threshold", "reference_height", "overhang", "horizon"}
+            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin"}
+            if not required <= set(d) <= required | optional:
                 raise ValueError(f"fields {sorted(d)}")
+            schedule = {k: d[k] for k in optional & set(d)}
+            if "track_margin" in schedule:
+                schedule["track_margin"] = float(schedule["track_margin"])
             return cls(
+                **schedule,
                 scales=tuple(SearchScale(**s) for s in d["scales"]),
                 threshold=float(d["threshold"]),
                 reference_height=int(d["reference_height"]),
@@ -516,15 +554,27 @@ def _needed_blocks(rows: np.ndarray, cols: np.ndarray, nbw: int, n_br: int, n_bc
 _BUFFERS = threading.local()
 
 
+_MAX_BUFFERS = 32
+
+
 def _buffer(name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
-    """A work array reused across frames (per thread): no page faults per frame."""
+    """A work array reused across frames (per thread): no page faults per frame.
+
+    Only whole bands use it (their shapes come back every frame; the crops of a scheduled
+    search change shape with the tracks and are not kept). At most ``_MAX_BUFFERS`` are kept,
+    the most recently used, so memory stays bounded whatever plans are searched.
+    """
     cache = getattr(_BUFFERS, "arrays", None)
     if cache is None:
-        cache = _BUFFERS.arrays = {}
+        cache = _BUFFERS.arrays = OrderedDict()
     key = (name, shape, np.dtype(dtype).str)  # one per band shape: scales alternate every frame
     arr = cache.get(key)
     if arr is None:
         arr = cache[key] = np.empty(shape, dtype)
+        while len(cache) > _MAX_BUFFERS:
+            cache.popitem(last=False)
+    else:
+        cache.move_to_end(key)
     return arr
 
 
@@ -555,7 +605,12 @@ def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
     return kw
 
 
-def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
+def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_only: bool = False) -> np.ndarray | None:
+    """Margins of every window of ``band``; ``reuse``: work arrays kept for the next frame (whole bands).
+
+    ``hog_only`` stops after the HOG cells and blocks and returns None (compiling those kernels).
+    """
+    buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
     cfg = model.config
     folded = _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
@@ -563,19 +618,21 @@ def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
     hog_pixels = hog_input(conv, cfg)
     n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
     n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
-    variants = _buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
+    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
     region_hog(hog_pixels, cfg, out=variants)
     need_rows, need_cols = _needed_blocks(band.rows, band.cols, nbw, n_br, n_bc)
     # Normalised blocks in float32: they fit the cache and halve the memory traffic of scoring.
-    maps = _buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size), np.float32)
+    maps = buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size), np.float32)
     for ch, v in enumerate(variants):
         _block_maps(v, cpb, _MAP_CLASSES, need_rows, need_cols, maps[ch])
+    if hog_only:
+        return None
     out = np.empty((len(band.rows), len(band.cols)))
     _score_hog(variants, maps, folded.hog, folded.hog32, cpb, band.rows, band.cols, out)
     if cfg.spatial_size or cfg.hist_bins:
         f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
-        bin_sums = _buffer("bin_sums", (conv.shape[0] // f, conv.shape[1] // f, 3))
-        cell_scores = _buffer("cell_scores", (n_cr, n_cc))
+        bin_sums = buffer("bin_sums", (conv.shape[0] // f, conv.shape[1] // f, 3))
+        cell_scores = buffer("cell_scores", (n_cr, n_cc))
         _colour_sums(conv, f, ppc, folded.hist_lut, bin_sums, cell_scores)
         _score_colour(bin_sums, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
                       bool(cfg.spatial_size), bool(cfg.hist_bins), out)
@@ -583,7 +640,67 @@ def _score_band(band: _Band, model: VehicleClassifier) -> np.ndarray:
     return out.ravel()
 
 
-def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None = None, *, all_windows: bool = False) -> Detections:
+def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_width: int, around: np.ndarray) -> np.ndarray:
+    """Which windows of ``band`` a between-frames search scores (see :class:`SearchPlan`), ``(rows, cols)`` bool.
+
+    ``around``: live track boxes in working-frame pixels, ``(n, 4)`` float.
+    """
+    ppc, side = config.pixels_per_cell, config.window
+    x1 = band.x0 + band.cols * ppc * band.sx  # (n_cols,) unclipped, working-frame pixels
+    x2 = x1 + side * band.sx
+    y1 = band.y0 + band.rows * ppc * band.sy  # (n_rows,)
+    y2 = y1 + side * band.sy
+    edge = ((x2 <= plan.edge_width) | (x1 >= work_width - plan.edge_width)) & (plan.edge_width > 0)
+    top = min(s.y_start for s in plan.scales) + plan.y_shift
+    horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
+    mask = edge[None, :] | horizon[:, None]
+    if len(around):
+        a = np.asarray(around, np.float64)
+        w, h = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
+        m = plan.track_margin
+        gx1, gy1, gx2, gy2 = a[:, 0] - m * w, a[:, 1] - m * h, a[:, 2] + m * w, a[:, 3] + m * h
+        cols_hit = (x1[None, :] < gx2[:, None]) & (x2[None, :] > gx1[:, None])  # (n, n_cols)
+        rows_hit = (y1[None, :] < gy2[:, None]) & (y2[None, :] > gy1[:, None])  # (n, n_rows)
+        mask |= (rows_hit[:, :, None] & cols_hit[:, None, :]).any(axis=0)
+    return mask
+
+
+def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -> np.ndarray:
+    """Margins of the band's windows where ``mask`` holds (the others: -inf), flat like :func:`_score_band`.
+
+    Windows see only their own pixels (the HOG gradient is zero on a window's border), so each
+    run of wanted columns is scored on a crop of the band holding just its windows, with the
+    same margins as the whole band gives.
+    """
+    cfg = model.config
+    ppc, side = cfg.pixels_per_cell, cfg.window
+    out = np.full(mask.shape, -np.inf)
+    wanted = mask.any(axis=0)
+    if not wanted.any():
+        return out.ravel()
+    if wanted.all() and mask.any(axis=1).all():
+        return _score_band(band, model)
+    edges = np.flatnonzero(np.diff(np.r_[0, wanted.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):  # columns a..b-1
+        rows_any = np.flatnonzero(mask[:, a:b].any(axis=1))
+        r0, r1 = rows_any[0], rows_any[-1] + 1
+        top, left = band.rows[r0] * ppc, band.cols[a] * ppc
+        image = band.image[top : band.rows[r1 - 1] * ppc + side, left : band.cols[b - 1] * ppc + side]
+        sub = _Band(np.ascontiguousarray(image), 0, 0, band.sx, band.sy,
+                    band.rows[r0:r1] - band.rows[r0], band.cols[a:b] - band.cols[a])
+        out[r0:r1, a:b] = _score_band(sub, model, reuse=False).reshape(r1 - r0, b - a)  # shapes vary: not kept
+    out[~mask] = -np.inf
+    return out.ravel()
+
+
+def search(
+    frame: np.ndarray,
+    model: VehicleClassifier,
+    plan: SearchPlan | None = None,
+    *,
+    all_windows: bool = False,
+    around: np.ndarray | None = None,
+) -> Detections:
     """Find the windows the classifier calls vehicles, scoring every window of the plan at once.
 
     Parameters
@@ -595,6 +712,11 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None 
         The model's own plan by default.
     all_windows : bool
         Return every window with its margin instead of only those above ``plan.threshold``.
+    around : ndarray, shape (n, 4), optional
+        None (the default) searches the whole plan. Otherwise the search between two full
+        searches of :attr:`SearchPlan.full_search_every`: only the windows at the frame edges,
+        near the horizon and overlapping these boxes (live tracks, in ``frame``'s pixels) grown
+        by ``plan.track_margin``; each with the same margin the whole search gives it.
 
     Returns
     -------
@@ -606,12 +728,19 @@ def search(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan | None 
     plan = model.detector_config.plan if plan is None else plan
     work, f = _working_frame(frame, plan)
     cfg = model.config
+    if around is not None:
+        around = np.asarray(around, np.float64).reshape(-1, 4) * f
     parts = []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg, plan.overhang, plan.y_shift)
         if band is None:
             continue
-        scores = _score_band(band, model)
-        keep = slice(None) if all_windows else scores > plan.threshold
+        if around is None:
+            scores = _score_band(band, model)
+            keep = slice(None) if all_windows else scores > plan.threshold
+        else:
+            mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
+            scores = _score_band_where(band, model, mask)
+            keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
     return Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)

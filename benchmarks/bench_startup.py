@@ -1,0 +1,168 @@
+"""Cold start, warm start, real time and memory of ``vehicle-detection detect``, end to end.
+
+    python benchmarks/bench_startup.py [--runs N] [--long-frames 1250] [--skip-long] [-- EXTRA CLI ARGS]
+
+Every figure is a whole command-line run in a subprocess (process start, imports, model loading,
+kernel compilation or cache loading, decode, detect, track, draw, encode, CSV):
+
+``python -m vehicle_detection.cli detect VIDEO --out TMP --boxes TMP --overwrite --no-progress``
+
+1. **cold**: the README's main job (``test_video.mp4``, 38 frames) with a fresh, empty
+   ``NUMBA_CACHE_DIR``, so every numba kernel is compiled (a fresh install);
+2. **warm**: the same job again with the cache the cold run filled;
+
+   cold and warm alternate, ``--runs`` times each; min / median / max are printed;
+3. **real time**: clip A (``dev_set/project_video_clip_A.mp4``, 1280x720) stream-copied 5 times
+   (1,250 frames, made with PyAV, no re-encoding) through the CLI with a warm cache, against a
+   plain decode + ``ultrafast`` encode of the same clip in one PyAV loop, measured alternately
+   in the same run: frames per second of both and their ratio;
+4. **memory**: peak RSS of the CLI on 250 and on 1,250 frames of the looped clip (from
+   ``os.wait4``, per child): it should not grow with the video's length.
+
+Extra arguments after ``--`` are passed to every ``detect`` run (e.g. ``-- --model M``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CLIP_A = REPO / "dev_set" / "project_video_clip_A.mp4"
+SHORT = REPO / "test_video.mp4"
+
+
+def _env(cache: Path) -> dict:
+    env = dict(os.environ)
+    env["NUMBA_CACHE_DIR"] = str(cache)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    return env
+
+
+def run_detect(video: Path, tmp: Path, cache: Path, extra: list[str]) -> tuple[float, int]:
+    """Seconds and peak RSS (bytes) of one CLI ``detect`` run."""
+    cmd = [sys.executable, "-m", "vehicle_detection.cli", "detect", str(video), "--out", str(tmp / "out.mp4"),
+           "--boxes", str(tmp / "out.csv"), "--overwrite", "--no-progress", *extra]
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=_env(cache), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    seconds = time.perf_counter() - t
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    err = proc.stderr.read().decode(errors="replace")
+    proc.stderr.close()
+    if proc.returncode != 0:
+        raise SystemExit(f"detect failed ({proc.returncode}): {' '.join(cmd)}\n{err}")
+    rss = usage.ru_maxrss * (1 if sys.platform == "darwin" else 1024)
+    return seconds, rss
+
+
+def loop_clip(src: Path, dest: Path, loops: int) -> Path:
+    """Stream-copy the video of ``src`` ``loops`` times over into ``dest`` (PyAV, no re-encoding)."""
+    import av
+
+    with av.open(os.fspath(src)) as inp, av.open(os.fspath(dest), "w") as out:
+        ist = inp.streams.video[0]
+        ost = out.add_stream_from_template(ist)
+        packets = [p for p in inp.demux(ist) if p.size]
+        step = max(p.pts for p in packets) + (packets[1].pts - packets[0].pts)
+        for loop in range(loops):
+            for p in packets:
+                copy = av.Packet(bytes(p))
+                copy.pts, copy.dts = p.pts + loop * step, p.dts + loop * step
+                copy.time_base, copy.is_keyframe = p.time_base, p.is_keyframe
+                copy.stream = ost
+                out.mux(copy)
+    return dest
+
+
+def plain_decode_encode(src: Path, dest: Path) -> int:
+    """Decode every frame to RGB and encode it (libx264 ultrafast, crf 23) in one plain loop; frames."""
+    import av
+
+    n = 0
+    with av.open(os.fspath(src)) as inp, av.open(os.fspath(dest), "w", format="mp4") as out:
+        ist = inp.streams.video[0]
+        ost = out.add_stream("libx264", rate=ist.average_rate, options={"preset": "ultrafast", "crf": "23"})
+        ost.width, ost.height, ost.pix_fmt = ist.codec_context.width, ist.codec_context.height, "yuv420p"
+        for frame in inp.decode(ist):
+            rgb = frame.to_ndarray(format="rgb24")
+            out.mux(ost.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+            n += 1
+        out.mux(ost.encode(None))
+    return n
+
+
+def frames_in(path: Path) -> int:
+    import av
+
+    with av.open(os.fspath(path)) as inp:
+        return sum(1 for _ in inp.decode(video=0))
+
+
+def _stats(xs: list[float], fmt: str = "{:.2f}") -> str:
+    return f"min {fmt.format(min(xs))}  median {fmt.format(statistics.median(xs))}  max {fmt.format(max(xs))}"
+
+
+def main():
+    argv = sys.argv[1:]
+    extra: list[str] = []
+    if "--" in argv:
+        i = argv.index("--")
+        argv, extra = argv[:i], argv[i + 1 :]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=int, default=3, help="runs of each measurement (default 3)")
+    ap.add_argument("--long-loops", type=int, default=5, help="times clip A is looped for the long clip (default 5)")
+    ap.add_argument("--skip-long", action="store_true", help="cold and warm start only")
+    ap.add_argument("--skip-start", action="store_true", help="real time and memory only")
+    args = ap.parse_args(argv)
+    print(f"{os.cpu_count()} cores, python {sys.version.split()[0]}, extra args {extra or 'none'}")
+
+    with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp_name:
+        tmp = Path(tmp_name)
+        if not args.skip_start:
+            cold, warm = [], []
+            for i in range(args.runs):
+                cache = tmp / f"cache{i}"
+                cache.mkdir()
+                cold.append(run_detect(SHORT, tmp, cache, extra)[0])
+                warm.append(run_detect(SHORT, tmp, cache, extra)[0])
+                print(f"  run {i + 1}: cold {cold[-1]:.2f} s, warm {warm[-1]:.2f} s", flush=True)
+            print(f"cold start, {SHORT.name} (fresh numba cache): {_stats(cold)} s   (goal <= 5 s)")
+            print(f"warm start, {SHORT.name} (cache filled)     : {_stats(warm)} s   (goal <= 2.5 s)")
+        if args.skip_long:
+            return
+        cache = tmp / "cache-long"
+        cache.mkdir()
+        run_detect(SHORT, tmp, cache, extra)  # fill the cache
+        one = loop_clip(CLIP_A, tmp / "clip_A_x1.mp4", 1)
+        long = loop_clip(CLIP_A, tmp / f"clip_A_x{args.long_loops}.mp4", args.long_loops)
+        n_one, n_long = frames_in(one), frames_in(long)
+        e2e, plain, ratio, rss_one, rss_long = [], [], [], [], []
+        for i in range(args.runs):
+            t = time.perf_counter()
+            plain_decode_encode(long, tmp / "plain.mp4")
+            plain.append(n_long / (time.perf_counter() - t))
+            seconds, rss = run_detect(long, tmp, cache, extra)
+            e2e.append(n_long / seconds)
+            rss_long.append(rss)
+            ratio.append(e2e[-1] / plain[-1])
+            rss_one.append(run_detect(one, tmp, cache, extra)[1])
+            print(f"  run {i + 1}: detect {e2e[-1]:.1f} fps, plain decode+encode {plain[-1]:.1f} fps, "
+                  f"ratio {ratio[-1]:.2f}; peak RSS {rss_one[-1] / 2**20:.0f} MiB ({n_one} frames), "
+                  f"{rss_long[-1] / 2**20:.0f} MiB ({n_long} frames)", flush=True)
+        print(f"end to end, CLI detect, {n_long} frames 1280x720 (process start included): {_stats(e2e, '{:.1f}')} fps"
+              "   (goal >= 60)")
+        print(f"plain decode + ultrafast encode, same clip, same run         : {_stats(plain, '{:.1f}')} fps")
+        print(f"ratio end to end / plain decode+encode                       : {_stats(ratio)}")
+        print(f"peak RSS, {n_one} frames : {_stats([r / 2**20 for r in rss_one], '{:.0f}')} MiB")
+        print(f"peak RSS, {n_long} frames: {_stats([r / 2**20 for r in rss_long], '{:.0f}')} MiB")
+
+
+if __name__ == "__main__":
+    main()

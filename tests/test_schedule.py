@@ -1,0 +1,129 @@
+"""Search schedule: full search every N frames, in between only the edges, the horizon and the tracks."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from vehicle_detection.detections import Detections
+from vehicle_detection.detector import Detector
+from vehicle_detection.search import SearchPlan, SearchScale, search
+
+# Scales 1 and 2 with aspect 1: window corners fall on whole pixels (exact claims below).
+PLAN = SearchPlan(
+    scales=(SearchScale(1.0, 400, 496, step=2), SearchScale(2.0, 400, 592, step=1)),
+    overhang=0.5, full_search_every=3, edge_width=160, horizon_height=96, track_margin=0.5,
+)
+
+
+def _key(d: Detections):
+    return [tuple(b) + (k,) for b, k in zip(d.xyxy.tolist(), d.data["scale_index"].tolist())]
+
+
+def _claimed(windows: Detections, plan: SearchPlan, width: int, around: np.ndarray) -> np.ndarray:
+    """The windows the docs of SearchPlan promise for a between-frames search, from the boxes alone."""
+    x1, y1, x2, y2 = windows.xyxy.T
+    edge = (x2 <= plan.edge_width) | (x1 >= width - plan.edge_width)
+    top = min(s.y_start for s in plan.scales)
+    horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
+    near = np.zeros(len(windows), bool)
+    for bx1, by1, bx2, by2 in around:
+        w, h, m = bx2 - bx1, by2 - by1, plan.track_margin
+        near |= (x1 < bx2 + m * w) & (x2 > bx1 - m * w) & (y1 < by2 + m * h) & (y2 > by1 - m * h)
+    return edge | horizon | near
+
+
+def test_between_frames_search_is_the_claimed_windows_with_the_same_margins(default_model, test_frames):
+    frame = test_frames[0]
+    full = search(frame, default_model, PLAN, all_windows=True)
+    around = np.array([[700.0, 420.0, 860.0, 520.0]])
+    part = search(frame, default_model, PLAN, all_windows=True, around=around)
+    claimed = _claimed(full, PLAN, frame.shape[1], around)
+    assert 0 < claimed.sum() < len(full)
+    assert _key(part) == _key(full[claimed])
+    np.testing.assert_array_equal(part.score, full.score[claimed])  # bit for bit: windows see only their pixels
+    # thresholded: the hits of the full search among the claimed windows
+    hits = search(frame, default_model, PLAN, around=around)
+    assert _key(hits) == _key(full[claimed & (full.score > PLAN.threshold)])
+
+
+def test_between_frames_search_without_tracks_or_regions(default_model, test_frames):
+    frame = test_frames[0]
+    none = dataclasses.replace(PLAN, edge_width=0, horizon_height=0)
+    assert len(search(frame, default_model, none, all_windows=True, around=np.zeros((0, 4)))) == 0
+    full = search(frame, default_model, PLAN, all_windows=True)
+    edges = search(frame, default_model, dataclasses.replace(PLAN, horizon_height=0), all_windows=True, around=np.zeros((0, 4)))
+    x1, x2 = full.xyxy[:, 0], full.xyxy[:, 2]
+    assert 0 < len(edges) < len(full)
+    assert _key(edges) == _key(full[(x2 <= 160) | (x1 >= frame.shape[1] - 160)])
+
+
+class _Spy(Detector):
+    """Records what each frame's search is asked for, without searching."""
+
+    def __init__(self, plan):
+        super().__init__()
+        self.config = self.config.replace(plan=plan)
+        self.asked = []
+
+    def windows(self, frame, around=None):
+        self.asked.append(None if around is None else np.array(around))
+        if frame[0, 0, 0] == 1:  # a "car" in this frame
+            return Detections(np.array([[600, 400, 700, 480]] * 4), score=np.full(4, 2.0))
+        return Detections.empty()
+
+
+@pytest.mark.parametrize("every", [1, 3])
+def test_detector_searches_whole_frames_every_n(every):
+    det = _Spy(dataclasses.replace(PLAN, full_search_every=every))
+    frames = [np.full((720, 1280, 3), 1 if i >= 2 else 0, np.uint8) for i in range(9)]
+    list(det.track(frames))
+    whole = [i for i, a in enumerate(det.asked) if a is None]
+    assert whole == (list(range(9)) if every == 1 else [0, 3, 6])
+    if every == 3:
+        # between full searches: the live tracks' boxes when the frame was submitted
+        assert all(len(a) == 0 for a in det.asked[1:3])
+        assert all(len(a) == 1 for i, a in enumerate(det.asked) if a is not None and i >= 7)
+
+
+def test_default_schedule_is_every_frame_and_old_plans_load():
+    assert SearchPlan().full_search_every == 1
+    d = PLAN.to_dict()
+    assert SearchPlan.from_dict(d) == PLAN
+    old = {k: d[k] for k in ("scales", "threshold", "reference_height", "overhang", "horizon")}
+    assert SearchPlan.from_dict(old) == dataclasses.replace(
+        PLAN, full_search_every=1, edge_width=160, horizon_height=96, track_margin=0.5)
+    for bad in (dict(full_search_every=0), dict(edge_width=-1), dict(track_margin=-0.1), dict(full_search_every=True)):
+        with pytest.raises(ValueError):
+            dataclasses.replace(PLAN, **bad)
+    with pytest.raises(ValueError):
+        SearchPlan.from_dict({**d, "unknown": 1})
+
+
+def test_cli_full_search_every(tmp_path):
+    """``detect --full-search-every N`` runs the schedule; 0 is refused as a bad command line."""
+    from pathlib import Path
+
+    from vehicle_detection.cli import main
+    from vehicle_detection.tables import read_boxes_csv
+
+    repo = Path(__file__).resolve().parents[1]
+    frames = tmp_path / "clip.mp4"
+    import av
+
+    with av.open(str(repo / "test_video.mp4")) as inp, av.open(str(frames), "w") as out:  # first 12 frames
+        ist = inp.streams.video[0]
+        ost = out.add_stream_from_template(ist)
+        for i, p in enumerate(p for p in inp.demux(ist) if p.size):
+            if i >= 12:
+                break
+            p.stream = ost
+            out.mux(p)
+    assert main(["detect", str(frames), "--out", str(tmp_path / "o.mp4"), "--boxes", str(tmp_path / "o.csv"),
+                 "--full-search-every", "4", "--no-progress"]) == 0
+    assert len(read_boxes_csv(tmp_path / "o.csv")) > 0
+    with pytest.raises(SystemExit) as exc:
+        main(["detect", str(frames), "--full-search-every", "0"])
+    assert exc.value.code == 2

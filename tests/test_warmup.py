@@ -1,0 +1,38 @@
+"""Cold-start kernel compilation on two cores: safe no-ops around it."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from vehicle_detection import _warmup
+
+features = importlib.import_module("vehicle_detection.features")
+search = importlib.import_module("vehicle_detection.search")
+
+
+def test_without_restores_the_kernels_and_zeroes_outputs():
+    before = (features._region_variants, search._score_hog, search._block_maps)
+    with _warmup._without(_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS):
+        assert features._region_variants is _warmup._zero_last
+        out = np.ones(3)
+        search._score_hog(1, 2, out)
+        assert not out.any()
+    assert (features._region_variants, search._score_hog, search._block_maps) == before
+
+
+def test_every_kernel_is_compiled_by_one_side():
+    names = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS}
+    assert names == {"_region_variants", "_colour_sums", "_score_colour", "_block_maps", "_score_hog"}
+    for mod, fn, prefix in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS:
+        assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
+
+
+def test_searching_after_the_warm_up_gives_the_same_windows(default_model, test_frames):
+    before = search.search(test_frames[0], default_model)
+    _warmup._DONE.clear()
+    _warmup.compile_search_kernels(default_model)  # warm cache here: nothing to do
+    after = search.search(test_frames[0], default_model)
+    np.testing.assert_array_equal(before.xyxy, after.xyxy)
+    np.testing.assert_array_equal(before.score, after.score)

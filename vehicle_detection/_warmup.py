@@ -1,0 +1,153 @@
+"""Compile the search kernels on both cores when the numba cache is cold (a fresh install).
+
+numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
+kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
+process that compiles the HOG scoring kernel and the two colour kernels into the cache while this
+process compiles the HOG cell and block kernels (the first half of a real band's scoring, on a
+blank frame, so with exactly the argument types of a real search); this process then loads the
+helper's kernels from the cache. The helper runs a real search on a blank frame with this
+process's kernels replaced by no-ops (in the helper only: nothing is replaced here, so a search
+running in another thread meanwhile is unaffected). On a warm cache nothing happens here (the
+kernels load on first use), nor when the machine has no idle core (1-minute load average above
+the number of cores minus one): there the helper would only compete. The results never depend
+on this: a kernel the helper did not provide in time is compiled here as usual.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from . import _jit
+
+__all__ = ["compile_search_kernels"]
+
+_DONE = threading.Event()
+_LOCK = threading.Lock()
+# (module the search calls it through, name, cache file prefix)
+_HELPER_KERNELS = (
+    ("search", "_score_hog", "search._score_hog-"),
+    ("search", "_colour_sums", "search._colour_sums-"),
+    ("search", "_score_colour", "search._score_colour-"),
+)
+_MAIN_KERNELS = (
+    ("features", "_region_variants", "features._region_variants-"),
+    ("search", "_block_maps", "features._block_maps-"),
+)
+
+def _module(name: str):
+    import importlib
+
+    return importlib.import_module(f"{__package__}.{name}")  # the module, not the package's lazy names
+
+
+def _cached(kernels) -> bool:
+    """Whether the cache folder holds an index for every one of ``kernels`` (a warm cache)."""
+    if _jit.CACHE_DIR is None:
+        return True  # no cache: nothing to share between processes
+    names = set()
+    for root, _, files in os.walk(_jit.CACHE_DIR):
+        names.update(files)
+    for _, _, prefix in kernels:
+        if not any(n.startswith(prefix) and n.endswith(".nbi") for n in names):
+            return False
+    return True
+
+
+def _zero_last(*args) -> None:
+    """A no-op kernel that leaves its output (the last argument) zero, not uninitialised."""
+    args[-1].fill(0)
+
+
+def _idle_core() -> bool:
+    """Whether a second core is free for the helper (on a busy machine it would only compete)."""
+    cores = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # Windows
+        return cores >= 2
+    return cores >= 2 and load <= cores - 1
+
+
+@contextmanager
+def _without(kernels):
+    """Replace ``kernels`` by no-ops for the duration (the helper process only: never in a user's process)."""
+    saved = []
+    for mod, fn, _ in kernels:
+        m = _module(mod)
+        saved.append((m, fn, getattr(m, fn)))
+        setattr(m, fn, _zero_last)
+    try:
+        yield
+    finally:
+        for m, fn, f in saved:
+            setattr(m, fn, f)
+
+
+def _blank_band(model):
+    from .search import _band, _working_frame
+
+    plan = model.detector_config.plan
+    work, _ = _working_frame(np.zeros((720, 320, 3), np.uint8), plan)
+    for s in plan.scales:
+        band = _band(work, s, model.config, plan.overhang, plan.y_shift)
+        if band is not None:
+            return band
+    return None
+
+
+def _compile_main(model) -> None:
+    """This process's half: the HOG cell and block kernels, by the real code path, nothing replaced."""
+    from .search import _score_band
+
+    band = _blank_band(model)
+    if band is not None:
+        _score_band(band, model, reuse=False, hog_only=True)
+
+
+def compile_search_kernels(model) -> None:
+    """Before the first search of a run: on a cold cache, compile the kernels in two processes.
+
+    Later calls return at once; nothing of this process is replaced, so any thread may search meanwhile.
+    """
+    with _LOCK:
+        if _DONE.is_set():
+            return
+        _DONE.set()
+        if not _idle_core() or _cached(_HELPER_KERNELS + _MAIN_KERNELS):
+            return
+        env = dict(os.environ)
+        env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
+        package_parent = str(Path(__file__).resolve().parents[1])  # this very package, not another install
+        env["PYTHONPATH"] = os.pathsep.join([package_parent] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        try:
+            helper = subprocess.Popen(
+                [sys.executable, "-c", "from vehicle_detection._warmup import _helper; _helper()"],
+                env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            )
+        except OSError:
+            return  # compiled here on first use
+        try:
+            _compile_main(model)
+            helper.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            pass
+        finally:
+            if helper.poll() is None:
+                helper.kill()
+                helper.wait()
+
+
+def _helper() -> None:
+    """The helper process's half: a real search of a blank frame with the main half's kernels as no-ops."""
+    from .classifier import load_default_model
+    from .search import search
+
+    with _without(_MAIN_KERNELS):  # this process only
+        search(np.zeros((720, 320, 3), np.uint8), load_default_model())
