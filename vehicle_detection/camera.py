@@ -38,17 +38,61 @@ _FORMAT = "vehicle-detection camera 1"
 
 
 def find_chessboard(image: np.ndarray, pattern: tuple[int, int] = (9, 6)) -> np.ndarray | None:
-    """Inner corners of a full chessboard, sub-pixel refined: ``(cols*rows, 2)`` float32, or None."""
+    """Inner corners of a whole chessboard, to sub-pixel accuracy.
+
+    Uses OpenCV's sector-based detector (``cv2.findChessboardCornersSB`` with
+    ``CALIB_CB_ACCURACY``), which locates each corner to a fraction of a pixel itself (see the
+    writeup for how it compares with ``findChessboardCorners`` and ``cornerSubPix``).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) or (H, W), uint8
+        RGB or grey photo.
+    pattern : (int, int)
+        Inner corners per row and per column.
+
+    Returns
+    -------
+    ndarray, shape (cols * rows, 2), float32, or None
+        The corners row by row; None when no board with all its inner corners is found, or when
+        the board is cut by the image edge (an inner corner less than half a square from it).
+    """
+    corners, _ = _find_board(image, pattern)
+    return corners
+
+
+def _find_board(image: np.ndarray, pattern: tuple[int, int]) -> tuple[np.ndarray | None, str]:
+    """``(corners, "")`` or ``(None, why)``."""
     import cv2
 
-    gray = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-    found, corners = cv2.findChessboardCorners(gray, pattern, flags)
+    gray = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) if image.ndim == 3 else np.ascontiguousarray(image)
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+    found, corners = cv2.findChessboardCornersSB(gray, pattern, flags)
     if not found:
-        return None
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
-    corners = cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), criteria)
-    return corners.reshape(-1, 2).astype(np.float32)
+        return None, f"no full {pattern[0]}x{pattern[1]} chessboard found"
+    corners = corners.reshape(-1, 2).astype(np.float32)
+    if not _board_inside(corners, pattern, gray.shape[1], gray.shape[0]):
+        return None, f"the {pattern[0]}x{pattern[1]} chessboard is cut by the image edge"
+    return corners, ""
+
+
+def _board_inside(corners: np.ndarray, pattern: tuple[int, int], width: int, height: int) -> bool:
+    """Whether every inner corner lies at least half a square inside the image.
+
+    The four squares meeting at a corner must then be at least half visible; a corner closer to
+    the edge (a board cut by it) is located from a truncated neighbourhood.
+    """
+    grid = corners.reshape(pattern[1], pattern[0], 2)
+    across = np.linalg.norm(np.diff(grid, axis=1), axis=2)  # (rows, cols - 1)
+    down = np.linalg.norm(np.diff(grid, axis=0), axis=2)  # (rows - 1, cols)
+    square = np.full(grid.shape[:2], np.inf)
+    square[:, :-1] = np.minimum(square[:, :-1], across)
+    square[:, 1:] = np.minimum(square[:, 1:], across)
+    square[:-1, :] = np.minimum(square[:-1, :], down)
+    square[1:, :] = np.minimum(square[1:, :], down)
+    x, y = grid[..., 0], grid[..., 1]
+    margin = np.minimum(np.minimum(x, width - 1 - x), np.minimum(y, height - 1 - y))
+    return bool(np.all(margin >= 0.5 * square))
 
 
 @dataclass(frozen=True, eq=False)
@@ -295,9 +339,9 @@ def calibrate(
             else:
                 skipped[name] = f"size {w}x{h} differs from the majority {width}x{height} by more than a {max_crop}-pixel crop"
                 continue
-        corners = find_chessboard(im, pattern)
+        corners, why = _find_board(im, pattern)
         if corners is None:
-            skipped[name] = f"no full {pattern[0]}x{pattern[1]} chessboard found"
+            skipped[name] = why
             if name in cropped:
                 cropped.remove(name)
             continue
