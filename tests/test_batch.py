@@ -151,6 +151,15 @@ def test_image_folder_csv_names_each_file(tmp_path):
         assert set(a) >= {"id", "image_id", "category_id", "bbox", "area", "score", "iscrowd"}
         assert a["image_id"] == frame + 1 and a["bbox"] == [x1, y1, x2 - x1, y2 - y1] and a["area"] == (x2 - x1) * (y2 - y1)
         assert a["score"] == pytest.approx(score, abs=1e-4)
+    # Read back by the COCO reference API, as a ground-truth file and as detection results.
+    coco_mod = pytest.importorskip("pycocotools.coco")
+    coco = coco_mod.COCO(str(out / "shots_coco.json"))
+    assert sorted(coco.getImgIds()) == [1, 2] and coco.getCatIds(catNms=["car"]) == [1]
+    for frame in range(2):
+        boxes = [a["bbox"] for a in coco.loadAnns(coco.getAnnIds(imgIds=[frame + 1]))]
+        assert boxes == [[x1, y1, x2 - x1, y2 - y1] for f, x1, y1, x2, y2, _, _ in table.rows() if f == frame]
+    results = coco.loadRes(anns)
+    assert len(results.getAnnIds()) == len(table)
 
 
 def test_mot_export_reads_back_with_motmetrics(tmp_path):
