@@ -61,3 +61,31 @@ def test_nothing_writable_compiles_without_a_cache(tmp_path):
     # A user-set folder that cannot be created, and nothing else tried: the kernels still
     # compile and compute the same numbers (checked by the script), uncached.
     assert _run(tmp_path, NUMBA_CACHE_DIR=str(blocker / "numba")) == "None"
+
+
+def test_install_that_cannot_be_written_runs_help_and_detect(tmp_path):
+    """A copy of the package that is never written to, and no writable cache folder anywhere:
+    ``--help`` and ``detect`` work, and the install is left byte for byte as it was."""
+    import shutil
+
+    site = tmp_path / "site"
+    shutil.copytree(PACKAGE, site / "vehicle_detection", ignore=shutil.ignore_patterns("__pycache__"))
+    before = {p: p.stat().st_mtime_ns for p in site.rglob("*")}
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(
+        PYTHONPATH=str(site), PYTHONDONTWRITEBYTECODE="1", NUMBA_CACHE_DIR=str(blocker / "numba"),
+        XDG_CACHE_HOME=str(blocker / "cache"), TMPDIR=str(blocker / "tmp"),
+    )
+    video = PACKAGE.parent / "test_video.mp4"  # committed
+    cli = [sys.executable, "-m", "vehicle_detection.cli"]
+    help_run = subprocess.run([*cli, "--help"], env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert help_run.returncode == 0 and "detect" in help_run.stdout, help_run.stderr[-2000:]
+    out = tmp_path / "out"
+    out.mkdir()
+    run = subprocess.run([*cli, "detect", str(video), "--no-video", "--out-dir", str(out), "--no-progress"],
+                         env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert (out / "test_video_boxes.csv").read_text().count("\n") > 1
+    assert {p: p.stat().st_mtime_ns for p in site.rglob("*")} == before  # nothing written, nothing added
