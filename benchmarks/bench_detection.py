@@ -1,6 +1,7 @@
 """Detection speed on a 1280x720 clip, against a plain decode+encode of the same clip.
 
     python benchmarks/bench_detection.py [VIDEO] [--model M] [--frames N] [--camera CAMERA.json [--lanes]]
+                                         [--full-search-every N]
 
 VIDEO defaults to ../shared/data/videos/project_video_clip_A.mp4 when present, else the
 committed test_video.mp4. Prints frames per second for:
@@ -17,7 +18,9 @@ committed test_video.mp4. Prints frames per second for:
 and the ratio of end-to-end to the plain decode+encode. With ``--camera`` (a file from
 ``vehicle-detection calibrate``), also end to end with every frame undistorted, and with
 ``--lanes`` too, end to end with undistortion, lane finding and drawing, and distances
-(``process_video(camera=..., lanes=True)``), plus the cost of each step per frame.
+(``process_video(camera=..., lanes=True)``), plus the cost of each step per frame. With
+``--full-search-every N``, also detection only and end to end with the search schedule
+(:attr:`SearchPlan.full_search_every`), against every frame searched whole, in the same run.
 """
 
 from __future__ import annotations
@@ -44,6 +47,8 @@ def main():
     ap.add_argument("--frames", type=int, default=None, help="use only the first N frames")
     ap.add_argument("--camera", default=None, help="camera file: also time end to end with undistortion")
     ap.add_argument("--lanes", action="store_true", help="with --camera: also time end to end with lanes and distances")
+    ap.add_argument("--full-search-every", type=int, default=None, metavar="N",
+                    help="also time detection and end to end with the search schedule (whole frames every N frames)")
     args = ap.parse_args()
     if args.lanes and not args.camera:
         ap.error("--lanes needs --camera CAMERA.json (with a bird's-eye transform)")
@@ -84,6 +89,23 @@ def main():
         e2e_fps = n / (time.perf_counter() - t)
 
         extra = []
+        if args.full_search_every:
+            import dataclasses
+
+            cfg = detector.config
+            plan = dataclasses.replace(cfg.plan, full_search_every=args.full_search_every)
+            scheduled = Detector(detector.model.replace(detector_config=cfg.replace(plan=plan)))
+            t = time.perf_counter()
+            for _ in scheduled.track(frames):
+                pass
+            fps = n / (time.perf_counter() - t)
+            extra.append(f"detection only, whole frames every {args.full_search_every}: {fps:7.1f} fps   "
+                         f"= {fps / detect_fps:.2f} x every frame")
+            t = time.perf_counter()
+            process_video(video, Path(tmp) / "sched.mp4", detector=scheduled, progress=False, max_frames=n)
+            fps = n / (time.perf_counter() - t)
+            extra.append(f"end to end, whole frames every {args.full_search_every}: {fps:7.1f} fps   "
+                         f"= {fps / e2e_fps:.2f} x every frame, {fps / plain_fps:.2f} x plain decode+encode")
         if args.camera:
             from vehicle_detection.camera import Camera
 

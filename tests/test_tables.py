@@ -216,3 +216,15 @@ def test_read_rejects_broken_extended_files(tmp_path, header, row, fragment):
     p.write_text(BOXES_CSV_HEADER + header + "\n" + row + "\n")
     with pytest.raises(InputError, match=fragment):
         read_boxes_csv(p)
+
+
+def test_file_names_with_line_breaks_round_trip_and_lines_are_counted(tmp_path):
+    dets = DETS[:2]
+    names = ["two\nlines.png", 'a "b", c.png']
+    path = write_boxes_csv(tmp_path / "boxes.csv", dets, files=names)
+    assert list(read_boxes_csv(path).data["file"]) == names
+    # A bad record after the two-line one is reported at its own line of the file (line 4).
+    broken = tmp_path / "broken.csv"
+    broken.write_text(path.read_text().replace("2,0,0,64,64", "2,0,0,-64,64"))
+    with pytest.raises(InputError, match=r"line 4: x2 \(-64\) <= x1"):
+        read_boxes_csv(broken)

@@ -207,14 +207,16 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
             f"(optionally followed by ,{','.join(DISTANCE_COLUMNS)} and/or ,file)"
         )
     distances, files = _HEADERS[header]
-    if files:  # file names may be quoted (RFC 4180)
+    if files:  # file names may be quoted (RFC 4180), line breaks included
         import csv
+        import io
 
-        records = list(csv.reader(lines[1:]))
+        reader = csv.reader(io.StringIO("\n".join(lines[1:]), newline=""))
+        records = [(reader.line_num + 1, fields) for fields in reader]  # line of the record's end
     else:
-        records = [line.split(",") for line in lines[1:]]
+        records = list(enumerate((line.split(",") for line in lines[1:]), start=2))
     rows, extra, names = [], [], []
-    for lineno, fields in enumerate(records, start=2):
+    for lineno, fields in records:
         if not fields or fields == [""] or (len(fields) == 1 and not fields[0].strip()):
             raise InputError(f"{path}: line {lineno}: blank line inside the data")
         rows.append(_parse_line(fields, lineno, path, header))
