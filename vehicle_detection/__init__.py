@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING
 
 __version__ = "0.2.0"
 
-# Public name -> module that defines it.
+# Public name -> module that defines it. No public name may equal a module's name: importing the
+# module (which the package itself does) would rebind the package attribute to the module.
 _API = {
     # results and geometry
     "Detections": "detections",
@@ -30,7 +31,6 @@ _API = {
     "extract_features": "features",
     "SearchPlan": "search",
     "SearchScale": "search",
-    "search": "search",
     "Tracker": "tracker",
     "TrackerConfig": "tracker",
     "process_video": "pipeline",
@@ -119,7 +119,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .geometry import box_iou, match_boxes
     from .images import list_images, read_image, write_image
     from .mining import MiningSource, mine_negatives, write_negatives
-    from .search import SearchPlan, SearchScale, search
+    from .search import SearchPlan, SearchScale
     from .tracker import Tracker, TrackerConfig
     from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
     from .tracking_metrics import tracking_scores
