@@ -162,13 +162,20 @@ def test_horizon_moves_every_band_together(default_model):
     plan = SearchPlan(scales=(SearchScale(1.0, 400, 496), SearchScale(2.0, 420, 592)), overhang=0.0)
     frame = np.zeros((720, 1280, 3), np.uint8)
     base = np.concatenate(plan_windows(frame.shape, plan, default_model.config))
-    higher = SearchPlan(scales=plan.scales, overhang=0.0, horizon=0.5)  # top of the bands at row 360
-    assert higher.y_shift == -40
+    # A horizon 0.05 of the height (36 rows at 720) above the reference camera's.
+    higher = SearchPlan(scales=plan.scales, overhang=0.0, horizon=plan.reference_horizon - 0.05)
+    assert higher.y_shift == -36
     moved = np.concatenate(plan_windows(frame.shape, higher, default_model.config))
-    np.testing.assert_array_equal(moved, base + [0, -40, 0, -40])
+    np.testing.assert_array_equal(moved, base + [0, -36, 0, -36])
     assert SearchPlan.from_dict(higher.to_dict()) == higher
-    with pytest.raises(ValueError, match="horizon"):
-        SearchPlan(horizon=1.2)
+    assert SearchPlan(horizon=SearchPlan().reference_horizon).y_shift == 0
+    assert SearchPlan(horizon=0.683, reference_horizon=0.583).y_shift == 72
+    for field in ("horizon", "reference_horizon"):
+        with pytest.raises(ValueError, match=field):
+            SearchPlan(**{field: 1.2})
+    old = higher.to_dict()
+    del old["reference_horizon"]  # plans saved before it: the project camera's
+    assert SearchPlan.from_dict(old).reference_horizon == 0.583
 
 
 def test_plain_python_kernels_compute_the_same(default_model, test_frames, tmp_path):

@@ -85,7 +85,7 @@ class _Task:
     out: Path | None  # annotated video / image / folder; None: no video
     tables: dict[str, Path]  # format -> path
     model: str | None = None
-    horizon: float | None = None
+    horizon: float | str | None = None
     overwrite: bool = False
     preset: str = "ultrafast"
     crf: int = 23
@@ -200,19 +200,14 @@ _DETECTORS: dict = {}
 _THREADS: int | None = None
 
 
-def _detector(model: str | None, horizon: float | None):
+def _detector(model: str | None, horizon: float | str | None):
     key = (model, horizon)
     if key not in _DETECTORS:
-        import dataclasses
-
         from .classifier import VehicleClassifier, load_default_model
         from .detector import Detector
 
         m = VehicleClassifier.load(model) if model else load_default_model()
-        config = m.detector_config
-        if horizon is not None:
-            config = config.replace(plan=dataclasses.replace(config.plan, horizon=horizon))
-        _DETECTORS[key] = Detector(m, config)
+        _DETECTORS[key] = Detector(m, m.detector_config.at_horizon(horizon))
     return _DETECTORS[key]
 
 
@@ -401,7 +396,9 @@ def track_chunk(path, start: int, end: int | None, state=None, *, detector=None,
     try:
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
             pending: deque = deque()
-            for frame in itertools.islice(frames, start, end):
+            # The first chunk estimates the camera's horizon; the state carries it to the others.
+            detector, chunk = detector.for_footage(itertools.islice(frames, start, end), tracker)
+            for frame in chunk:
                 pending.append((frame.shape, pool.submit(detector.windows, frame)))
                 while len(pending) > workers:
                     shape, fut = pending.popleft()
@@ -526,7 +523,7 @@ def detect_many(
     frames: tuple[int | None, int | None] | range | None = None,
     *,
     model: str | os.PathLike | None = None,
-    horizon: float | None = None,
+    horizon: float | str | None = None,
     overwrite: bool = False,
     formats: Sequence[str] = ("csv",),
     table: str | os.PathLike | None = None,

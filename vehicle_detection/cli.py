@@ -59,6 +59,15 @@ def _fraction(text: str) -> float:
     return value
 
 
+def _horizon(text: str) -> float | str:
+    if text in ("auto", "plan"):
+        return text
+    try:
+        return _fraction(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), 'auto' or 'plan', got {text!r}") from None
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -201,9 +210,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--chunk-frames", type=_positive_int, default=None, metavar="N",
                    help="with --scheduler and --no-video: split each video into chunks of N frames (the tracker continues across)")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
-    p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
-                   help="where the road meets the horizon, as a fraction of the frame height from the top "
-                   "(default: the model's search plan, made for the project camera: 0.56)")
+    p.add_argument("--horizon", type=_horizon, default=None, metavar="FRACTION|auto|plan",
+                   help="the camera's horizon (where the road vanishes), as a fraction of the frame height from the top; "
+                   "'auto' estimates it from the footage, 'plan' keeps the search bands where the model's plan has them "
+                   "(made for the project camera, whose horizon is 0.583). Default: the model's setting (auto)")
     p.add_argument("--full-search-every", type=_positive_int, default=None, metavar="N",
                    help="videos: search whole frames every N frames, in between only the frame edges, the horizon "
                    "and around tracked vehicles (default: the model's plan, 1: every frame whole)")
@@ -232,9 +242,10 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--video", default=None, help="the labelled video or image folder, instead of the one the labels name")
     source.add_argument("--boxes", default=None, help="score this boxes CSV instead of running the detector")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
-    p.add_argument("--horizon", type=_fraction, default=None, metavar="FRACTION",
-                   help="where the road meets the horizon, as a fraction of the frame height from the top "
-                   "(default: the model's search plan, made for the project camera: 0.56)")
+    p.add_argument("--horizon", type=_horizon, default=None, metavar="FRACTION|auto|plan",
+                   help="the camera's horizon (where the road vanishes), as a fraction of the frame height from the top; "
+                   "'auto' estimates it from the footage, 'plan' keeps the search bands where the model's plan has them "
+                   "(made for the project camera, whose horizon is 0.583). Default: the model's setting (auto)")
     p.add_argument("--camera", default=None, metavar="CAMERA.json",
                    help="undistort every frame with this camera file before the search (the boxes are mapped back to the "
                    "original frames, where the labels are, before scoring)")
@@ -501,14 +512,12 @@ def _load_camera(path):
     return Camera.load(path)
 
 
-def _load_detector(model_path, horizon: float | None = None, full_search_every: int | None = None):
+def _load_detector(model_path, horizon: float | str | None = None, full_search_every: int | None = None):
     from .classifier import VehicleClassifier, load_default_model
     from .detector import Detector
 
     model = VehicleClassifier.load(model_path) if model_path else load_default_model()
-    config = model.detector_config
-    if horizon is not None:
-        config = config.replace(plan=dataclasses.replace(config.plan, horizon=horizon))
+    config = model.detector_config.at_horizon(horizon)
     if full_search_every is not None:
         config = config.replace(plan=dataclasses.replace(config.plan, full_search_every=full_search_every))
     return Detector(model, config)

@@ -32,11 +32,16 @@ class DetectorConfig:
         images too.
     image_threshold : float
         Heat a single image's blob must exceed (videos use the tracker's integrated threshold).
+    auto_horizon : bool
+        When the plan fixes no ``horizon``, estimate the camera's horizon from the footage (a
+        video's first frames, or the image itself; :mod:`~vehicle_detection.horizon`) and move
+        the search bands to it. Where no estimate can be made, the plan is used as written.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     image_threshold: float = 3.0
+    auto_horizon: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -47,6 +52,8 @@ class DetectorConfig:
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
             raise ValueError(f"DetectorConfig.image_threshold must be a finite number >= 0; got {t!r}")
         object.__setattr__(self, "image_threshold", float(t))
+        if not isinstance(self.auto_horizon, bool):
+            raise ValueError(f"DetectorConfig.auto_horizon must be True or False; got {self.auto_horizon!r}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -71,29 +78,55 @@ class DetectorConfig:
             decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
             aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
         )
-        return cls(plan=plan, tracker=tracker, image_threshold=2.0)
+        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""
         return replace(self, **changes)
 
+    def at_horizon(self, horizon: float | str | None) -> DetectorConfig:
+        """A copy searching at ``horizon``.
+
+        Parameters
+        ----------
+        horizon : float, "auto", "plan" or None
+            A fraction of the frame height: that horizon, fixed. ``"auto"``: estimated from
+            the footage. ``"plan"``: the plan's bands as written, never moved. None: unchanged.
+        """
+        if horizon is None:
+            return self
+        if horizon == "auto":
+            return replace(self, plan=replace(self.plan, horizon=None), auto_horizon=True)
+        if horizon == "plan":
+            return replace(self, plan=replace(self.plan, horizon=None), auto_horizon=False)
+        if isinstance(horizon, str):
+            raise ValueError(f"horizon must be a fraction, 'auto' or 'plan'; got {horizon!r}")
+        return replace(self, plan=replace(self.plan, horizon=float(horizon)))
+
     def to_dict(self) -> dict:
         """Plain JSON data."""
-        return {"plan": self.plan.to_dict(), "tracker": self.tracker.to_dict(), "image_threshold": self.image_threshold}
+        return {
+            "plan": self.plan.to_dict(),
+            "tracker": self.tracker.to_dict(),
+            "image_threshold": self.image_threshold,
+            "auto_horizon": self.auto_horizon,
+        }
 
     @classmethod
     def from_dict(cls, d: Any) -> DetectorConfig:
-        """The inverse of :meth:`to_dict`.
+        """The inverse of :meth:`to_dict`; without ``auto_horizon`` (files saved before it), False.
 
         Raises
         ------
         ValueError
             If a key is missing or unknown, or a value is out of range.
         """
-        if not isinstance(d, dict) or set(d) != {"plan", "tracker", "image_threshold"}:
-            raise ValueError("expected an object with exactly 'plan', 'tracker' and 'image_threshold'")
+        keys = {"plan", "tracker", "image_threshold"}
+        if not isinstance(d, dict) or not keys <= set(d) <= keys | {"auto_horizon"}:
+            raise ValueError("expected an object with 'plan', 'tracker', 'image_threshold' and optionally 'auto_horizon'")
         return cls(
             plan=SearchPlan.from_dict(d["plan"]),
             tracker=TrackerConfig.from_dict(d["tracker"]),
             image_threshold=d["image_threshold"],
+            auto_horizon=d.get("auto_horizon", False),
         )

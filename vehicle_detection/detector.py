@@ -12,6 +12,9 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+import itertools
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -27,6 +30,12 @@ from .search import search
 from .tracker import Tracker, window_heat
 
 __all__ = ["Detector"]
+
+#: Frames at the start of a video that the horizon is estimated from (every second one).
+HORIZON_FRAMES = 25
+#: An estimated horizon this close to the plan's reference horizon (a fraction of the frame
+#: height; the estimate's own spread on one camera) leaves the bands where they are.
+HORIZON_TOLERANCE = 0.015
 
 
 class Detector:
@@ -59,6 +68,45 @@ class Detector:
 
     def __repr__(self) -> str:
         return f"Detector({self.model!r}, {self.config!r})"
+
+    @property
+    def estimates_horizon(self) -> bool:
+        """Whether the search bands follow the camera's horizon estimated from the footage."""
+        return self.config.auto_horizon and self.config.plan.horizon is None
+
+    def with_horizon(self, horizon: float | None) -> Detector:
+        """This detector with its plan's bands moved to ``horizon`` (None: as written)."""
+        if horizon is None:
+            return self
+        out = copy.copy(self)  # a subclass stays one
+        out.config = self.config.replace(plan=dataclasses.replace(self.config.plan, horizon=float(horizon)))
+        return out
+
+    def _moved_to(self, estimate: float | None) -> float | None:
+        """The horizon to search at for an estimate: None when there is none or it is the reference's."""
+        if estimate is None or abs(estimate - self.config.plan.reference_horizon) <= HORIZON_TOLERANCE:
+            return None
+        return estimate
+
+    def for_footage(self, frames: Iterator[np.ndarray], tracker: Tracker) -> tuple[Detector, Iterator[np.ndarray]]:
+        """The detector for a video's frames, and the frames (none consumed).
+
+        With :attr:`estimates_horizon`, the horizon is estimated from the first
+        :data:`HORIZON_FRAMES` frames the first time (and kept in ``tracker.state``, so later
+        chunks of the same video use it too); the returned detector searches there, unless the
+        estimate lies within :data:`HORIZON_TOLERANCE` of the plan's ``reference_horizon``.
+        """
+        if not self.estimates_horizon:
+            return self, frames
+        from .horizon import estimate_horizon
+
+        state = tracker.state
+        if not state.horizon_searched:
+            first = list(itertools.islice(frames, HORIZON_FRAMES))
+            state.horizon = self._moved_to(estimate_horizon(first[::2], min_frames=min(3, len(first[::2]))))
+            state.horizon_searched = True
+            frames = itertools.chain(first, frames)
+        return self.with_horizon(state.horizon), frames
 
     def windows(self, frame: np.ndarray, around: np.ndarray | None = None) -> Detections:
         """Windows of one RGB ``uint8`` frame whose margin exceeds the plan's threshold.
@@ -104,14 +152,22 @@ class Detector:
         image : ndarray of uint8, shape (H, W, 3)
         windows : Detections, optional
             The image's hot windows when already computed (:meth:`windows`), to search once.
+            Without them the image is searched, at the horizon estimated from the image itself
+            when :attr:`estimates_horizon` (where none can be, the plan as written).
 
         Returns
         -------
         Detections
             One box per vehicle with the peak heat of its blob as ``score``; untracked.
         """
-        wins = self.windows(image) if windows is None else windows
-        heat = self.heat(image.shape, wins)
+        if windows is None:
+            searcher = self
+            if self.estimates_horizon:
+                from .horizon import estimate_horizon
+
+                searcher = self.with_horizon(self._moved_to(estimate_horizon([image])))
+            windows = searcher.windows(image)
+        heat = self.heat(image.shape, windows)
         cfg = self.config.tracker
         boxes, peaks = heat_to_boxes(
             heat, self.config.image_threshold, cell=cfg.cell, min_size=cfg.min_size, aspect_range=cfg.aspect_range,
@@ -124,10 +180,14 @@ class Detector:
         return Tracker(self.config.tracker)
 
     def step(self, frame: np.ndarray, tracker: Tracker) -> Detections:
-        """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill)."""
-        around = self._scheduled_around(tracker, tracker.state.frame_index)
-        wins = self.windows(frame) if around is None else self.windows(frame, around)
-        return self.track_step(frame.shape, wins, tracker)
+        """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill).
+
+        With :attr:`estimates_horizon`, the horizon is estimated from the first frame.
+        """
+        det, _ = self.for_footage(iter((frame,)), tracker)
+        around = det._scheduled_around(tracker, tracker.state.frame_index)
+        wins = det.windows(frame) if around is None else det.windows(frame, around)
+        return det.track_step(frame.shape, wins, tracker)
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""
@@ -145,6 +205,9 @@ class Detector:
         vehicle is reported from the frame it appeared, and still no track is born from a
         single frame.
 
+        With :attr:`estimates_horizon`, the search bands follow the horizon estimated from the
+        first frames (:meth:`for_footage`).
+
         With a search schedule (``plan.full_search_every > 1``), the frames between full
         searches are searched around the tracks live when the frame is submitted (the tracker
         then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
@@ -153,13 +216,14 @@ class Detector:
 
         compile_search_kernels(self.model)  # on a fresh install, on both cores
         tracker = tracker or self.new_tracker()
+        det, frames = self.for_footage(iter(frames), tracker)
         submitted = tracker.state.frame_index
         lag = max(0, self.config.tracker.min_hits - 1)
         held: deque = deque()  # [frame, index, detections], oldest first
 
         def advance(frame, wins):
             index = tracker.state.frame_index
-            found = self.track_step(frame.shape, wins, tracker)
+            found = det.track_step(frame.shape, wins, tracker)
             fill = tracker.backfill
             for entry in held if len(fill) else ():
                 extra = fill.at_frame(entry[1])
@@ -175,10 +239,10 @@ class Detector:
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 for frame in frames:
-                    around = self._scheduled_around(tracker, submitted)
+                    around = det._scheduled_around(tracker, submitted)
                     submitted += 1
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
-                    pending.append((frame, pool.submit(self.windows, *args)))
+                    pending.append((frame, pool.submit(det.windows, *args)))
                     if len(pending) > workers:
                         f, fut = pending.popleft()
                         advance(f, fut.result())

@@ -120,10 +120,14 @@ class SearchPlan:
         Fraction of a window's width that may lie beyond the left or right frame edge, in
         ``[0, 1)``: the frame is mirrored there, and boxes are clipped to the frame.
     horizon : float or None
-        Where the road meets the horizon, as a fraction of the frame height from the top: the
-        bands are moved up or down together so that the highest starts there. None keeps them
-        where they are written (the project camera's horizon, 400 / 720). Another camera,
-        mounted higher or tilted, sees its horizon elsewhere.
+        Where the camera's horizon is (the row where the road vanishes), as a fraction of the
+        frame height from the top: the bands move up or down together by its distance from
+        ``reference_horizon``. None keeps them where they are written;
+        :class:`~vehicle_detection.detector.Detector` then estimates it from the footage
+        (:mod:`~vehicle_detection.horizon`) unless its config says not to.
+    reference_horizon : float
+        The horizon of the camera the bands are written for (the project camera's, measured by
+        :func:`~vehicle_detection.horizon.vanishing_row`).
     full_search_every : int
         Search schedule over video frames (:class:`~vehicle_detection.detector.Detector`): every
         ``full_search_every``-th frame is searched whole; the frames in between only where a
@@ -143,6 +147,7 @@ class SearchPlan:
     reference_height: int = 720
     overhang: float = 0.5
     horizon: float | None = None
+    reference_horizon: float = 0.583
     full_search_every: int = 1
     edge_width: int = 160
     horizon_height: int = 96
@@ -163,15 +168,17 @@ class SearchPlan:
             raise ValueError("reference_height must be at least 64")
         if not 0.0 <= self.overhang < 1.0:
             raise ValueError(f"overhang must be in [0, 1), got {self.overhang}")
-        if self.horizon is not None and not 0.0 <= self.horizon < 1.0:
-            raise ValueError(f"horizon must be a fraction of the frame height in [0, 1), got {self.horizon}")
+        for name in ("horizon", "reference_horizon"):
+            v = getattr(self, name)
+            if v is not None and not 0.0 <= v < 1.0:
+                raise ValueError(f"{name} must be a fraction of the frame height in [0, 1), got {v}")
 
     @property
     def y_shift(self) -> int:
-        """Rows (at the reference height) the bands move to start at the horizon."""
+        """Rows (at the reference height) the bands move down: the horizon's distance below the reference."""
         if self.horizon is None:
             return 0
-        return round(self.horizon * self.reference_height) - min(s.y_start for s in self.scales)
+        return round((self.horizon - self.reference_horizon) * self.reference_height)
 
     def to_dict(self) -> dict:
         return {
@@ -180,6 +187,7 @@ class SearchPlan:
             "reference_height": self.reference_height,
             "overhang": self.overhang,
             "horizon": self.horizon,
+            "reference_horizon": self.reference_horizon,
             "full_search_every": self.full_search_every,
             "edge_width": self.edge_width,
             "horizon_height": self.horizon_height,
@@ -191,16 +199,18 @@ class SearchPlan:
         """The inverse of :meth:`to_dict`; a malformed plan raises ``ValueError``.
 
         Plans saved before the search schedule existed (without its four fields) load with the
-        defaults: every frame searched whole.
+        defaults: every frame searched whole; plans without ``reference_horizon``, with the
+        project camera's.
         """
         try:
             required = {"scales", "threshold", "reference_height", "overhang", "horizon"}
-            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin"}
+            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon"}
             if not required <= set(d) <= required | optional:
                 raise ValueError(f"fields {sorted(d)}")
             schedule = {k: d[k] for k in optional & set(d)}
-            if "track_margin" in schedule:
-                schedule["track_margin"] = float(schedule["track_margin"])
+            for name in ("track_margin", "reference_horizon"):
+                if name in schedule:
+                    schedule[name] = float(schedule[name])
             return cls(
                 **schedule,
                 scales=tuple(SearchScale(**s) for s in d["scales"]),

@@ -247,6 +247,12 @@ class TrackerState:
         Number of frames processed so far (the 0-based index of the next frame).
     frame_shape : (int, int) or None
         ``(H, W)`` of the frames seen; None before the first frame.
+    horizon : float or None
+        The camera horizon the detector estimated for these frames (None: none found, or not
+        looked for yet); kept here so that a video processed in chunks is searched the same
+        way in every chunk.
+    horizon_searched : bool
+        Whether the detector has looked for the horizon.
     """
 
     integrated: np.ndarray | None = None
@@ -254,6 +260,8 @@ class TrackerState:
     next_id: int = 0
     frame_index: int = 0
     frame_shape: tuple[int, int] | None = None
+    horizon: float | None = None
+    horizon_searched: bool = False
 
     def copy(self) -> TrackerState:
         """A deep copy: updating either afterwards leaves the other unchanged."""
@@ -263,6 +271,8 @@ class TrackerState:
             next_id=self.next_id,
             frame_index=self.frame_index,
             frame_shape=self.frame_shape,
+            horizon=self.horizon,
+            horizon_searched=self.horizon_searched,
         )
 
 
