@@ -161,6 +161,8 @@ CASES = {
     "missing-argument": (["detect"], 2, ["the following arguments are required: INPUT", "vehicle-detection detect --help"], [], False),
     "bad-number": (["train", "--C", "-1"], 2, ["argument --C: expected a finite number > 0, got '-1'"], [], False),
     "bad-jobs": (["sweep", "--jobs", "0"], 2, ["argument --jobs: expected a whole number >= 1, got '0'"], [], False),
+    "bad-horizon": (["detect", "street.jpg", "--horizon", "sky"], 2,
+                    ["argument --horizon: expected a fraction in [0, 1), 'auto' or 'plan', got 'sky'"], [], False),
     # 3: bad input
     "missing-input": (["detect", "nothere.png"], 3, ["nothere.png: no such file or folder"], [], False),
     "unknown-type": (["detect", "notes.txt"], 3, ["notes.txt: unknown file type '.txt'"], ["notes.txt"], False),

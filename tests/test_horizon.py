@@ -1,0 +1,134 @@
+"""The camera's horizon from the road's lines, and the detector searching there."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import REPO
+from vehicle_detection.config import DetectorConfig
+from vehicle_detection.detector import HORIZON_TOLERANCE, Detector
+from vehicle_detection.horizon import estimate_horizon, vanishing_row
+from vehicle_detection.images import read_image
+from vehicle_detection.search import SearchPlan
+
+
+def road(vp_row: float, size=(1280, 720), vp_x: float = 0.5) -> np.ndarray:
+    """A grey road with two white lane lines and a road edge meeting at (vp_x, vp_row)."""
+    w, h = size
+    img = np.full((h, w, 3), 70, np.uint8)
+    img[: int(vp_row * h)] = (150, 180, 210)  # sky
+    vp = (vp_x * w, vp_row * h)
+    for bottom_x in (0.15 * w, 0.8 * w, 1.05 * w):
+        # From the bottom edge towards the vanishing point, stopping short of it.
+        t = 0.85
+        end = (bottom_x + t * (vp[0] - bottom_x), h + t * (vp[1] - h))
+        cv2.line(img, (int(bottom_x), h - 1), (int(end[0]), int(end[1])), (235, 235, 235), max(2, h // 120))
+    return img
+
+
+@pytest.mark.parametrize("vp_row", [0.45, 0.52, 0.583, 0.66])
+@pytest.mark.parametrize("size", [(1280, 720), (960, 540), (640, 480)])
+def test_vanishing_row_of_a_drawn_road(vp_row, size):
+    assert vanishing_row(road(vp_row, size)) == pytest.approx(vp_row, abs=0.01)
+
+
+def test_no_lines_no_row():
+    assert vanishing_row(np.full((720, 1280, 3), 90, np.uint8)) is None
+    assert vanishing_row(np.zeros((8, 8, 3), np.uint8)) is None
+    assert estimate_horizon([]) is None
+
+
+def test_estimate_needs_agreement():
+    same = [road(0.5), road(0.505), road(0.495)]
+    assert estimate_horizon(same) == pytest.approx(0.5, abs=0.01)
+    split = [road(0.45), road(0.45), road(0.6), road(0.6)]  # no group holds 60 % of the frames
+    assert estimate_horizon(split) is None
+    assert estimate_horizon(split, min_share=0.5) == pytest.approx(0.45, abs=0.01)
+    assert estimate_horizon(same[:2], min_frames=3) is None
+
+
+def test_project_camera_images_sit_at_the_reference_horizon():
+    reference = SearchPlan().reference_horizon
+    rows = [vanishing_row(read_image(p)) for p in sorted((REPO / "test_images").glob("test*.jpg"))]
+    assert len(rows) == 6 and all(r is not None for r in rows)
+    assert max(abs(r - reference) for r in rows) <= HORIZON_TOLERANCE  # so the bands do not move for them
+    from itertools import islice
+
+    from vehicle_detection.video import read_frames
+
+    frames = read_frames(REPO / "test_video.mp4")
+    try:
+        first = list(islice(frames, 25))[::2]
+    finally:
+        frames.close()
+    assert estimate_horizon(first) == pytest.approx(reference, abs=0.003)
+
+
+def shifted(image: np.ndarray, rows: int) -> np.ndarray:
+    """The scene moved up by ``rows`` (a camera tilted down): the top cut, the bottom repeated."""
+    return np.ascontiguousarray(np.concatenate([image[rows:], np.repeat(image[-1:], rows, axis=0)]))
+
+
+def test_detector_follows_a_camera_with_a_higher_horizon(test_frames):
+    image = test_frames[0]  # test1: two cars
+    detector = Detector()
+    assert detector.estimates_horizon
+    up = shifted(image, 72)  # horizon 0.1 of the height higher
+    assert vanishing_row(up) == pytest.approx(vanishing_row(image) - 0.1, abs=0.01)
+    found = detector.detect_image(up)
+    fixed = Detector(detector.model, detector.config.at_horizon("plan")).detect_image(up)
+    reference = detector.detect_image(image)
+    assert len(reference) == 2 and len(found) == 2
+    # The same cars, 72 rows higher, within a few pixels of where they are found in the original.
+    np.testing.assert_allclose(np.sort(found.xyxy, axis=0), np.sort(reference.xyxy - [0, 72, 0, 72], axis=0), atol=16)
+    assert len(fixed) < 2  # the plan as written searches below them
+
+
+def test_video_horizon_is_estimated_once_and_kept_in_the_tracker_state(test_frames):
+    detector = Detector()
+    frames = [shifted(f, 72) for f in test_frames[:1]] * 4
+    tracker = detector.new_tracker()
+    list(detector.track(frames, tracker))
+    state = tracker.state
+    assert state.horizon_searched and state.horizon == pytest.approx(vanishing_row(test_frames[0]) - 0.1, abs=0.01)
+    # A later chunk does not look again: it keeps the first chunk's horizon, whatever it sees.
+    later = tracker.state.copy()
+    tracker2 = detector.new_tracker()
+    tracker2._state = later
+    det, _ = detector.for_footage(iter([np.zeros((720, 1280, 3), np.uint8)]), tracker2)
+    assert det.config.plan.horizon == state.horizon
+    # The project camera's own footage leaves the plan as written.
+    tracker3 = detector.new_tracker()
+    det, rest = detector.for_footage(iter(test_frames), tracker3)
+    assert det is detector and tracker3.state.horizon is None and tracker3.state.horizon_searched
+    assert len(list(rest)) == len(test_frames)  # no frame consumed
+
+
+def test_config_horizon_settings_round_trip():
+    cfg = DetectorConfig()
+    assert cfg.auto_horizon and cfg.plan.horizon is None
+    assert cfg.at_horizon(0.5).plan.horizon == 0.5
+    assert not cfg.at_horizon("plan").auto_horizon and cfg.at_horizon("plan").plan.horizon is None
+    assert cfg.at_horizon(0.5).at_horizon("auto") == cfg
+    assert cfg.at_horizon(None) is cfg
+    with pytest.raises(ValueError, match="'auto' or 'plan'"):
+        cfg.at_horizon("sky")
+    assert DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    old = cfg.to_dict()
+    del old["auto_horizon"]  # files saved before it searched where the plan says
+    assert DetectorConfig.from_dict(old).auto_horizon is False
+    assert DetectorConfig.library_0_1().auto_horizon is False
+    with pytest.raises(ValueError, match="auto_horizon"):
+        DetectorConfig(auto_horizon="yes")
+
+
+@pytest.mark.parametrize("value, auto, horizon", [("auto", True, None), ("plan", False, None), ("0.5", True, 0.5)])
+def test_cli_horizon_values(value, auto, horizon):
+    from vehicle_detection.cli import _load_detector, build_parser
+
+    args = build_parser().parse_args(["detect", "x.mp4", "--horizon", value])
+    config = _load_detector(None, args.horizon).config
+    assert config.auto_horizon is auto and config.plan.horizon == horizon
+    assert Detector(config=config).estimates_horizon is (auto and horizon is None)

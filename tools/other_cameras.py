@@ -1,0 +1,92 @@
+"""Clip A as other cameras would see it: cropped, tilted and rescaled, with its labels moved along.
+
+    python tools/other_cameras.py OUT_DIR
+
+Writes, for each simulated camera, ``NAME.mp4`` and ``NAME_clip_A.json`` / ``NAME_clip_A_tracks.json``
+(the dev set's labels mapped into the new frame; a car less than half inside becomes an ignore
+region) into OUT_DIR, then scores them with::
+
+    vehicle-detection evaluate --labels OUT_DIR/NAME_clip_A.json OUT_DIR/NAME_clip_A_tracks.json [--horizon plan]
+
+A crop that starts lower or higher moves the road's vanishing point up or down in the frame, as a
+camera tilted down or up would; the resize changes the frame size and the cars' size in pixels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DEV_SET = REPO / "dev_set"
+
+#: name: (crop x0, y0, x1, y1 in the 1280x720 frame, output width, height)
+CAMERAS = {
+    "tilted_down_960x540": ((80, 90, 1200, 720), (960, 540)),
+    "tilted_up_960x472": ((0, 0, 1280, 630), (960, 472)),
+    "tilted_down_1280x600": ((0, 120, 1280, 720), (1280, 600)),
+}
+
+
+def _move(box, crop, size):
+    x0, y0, x1, y1 = crop
+    sx, sy = size[0] / (x1 - x0), size[1] / (y1 - y0)
+    out = [(box[0] - x0) * sx, (box[1] - y0) * sy, (box[2] - x0) * sx, (box[3] - y0) * sy]
+    full = (out[2] - out[0]) * (out[3] - out[1])
+    clipped = [max(0.0, out[0]), max(0.0, out[1]), min(size[0], out[2]), min(size[1], out[3])]
+    inside = max(0.0, clipped[2] - clipped[0]) * max(0.0, clipped[3] - clipped[1])
+    return [int(round(v)) for v in clipped], (inside / full if full > 0 else 0.0)
+
+
+def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
+    import vehicle_detection as vd
+
+    x0, y0, x1, y1 = crop
+    video = out_dir / f"{name}.mp4"
+    frames = vd.read_frames(DEV_SET / "project_video_clip_A.mp4")
+    try:
+        with vd.VideoWriter(video, 25, size, overwrite=True, crf=18) as writer:
+            for frame in frames:
+                writer.write(cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), size, interpolation=cv2.INTER_AREA))
+    finally:
+        frames.close()
+    written = [video]
+    for labels in ("clip_A", "clip_A_tracks"):
+        doc = json.loads((DEV_SET / f"{labels}.json").read_text())
+        doc["video"] = video.name
+        for entry in doc["frames"].values():
+            cars, ids = [], []
+            ignore = [b for b, share in (_move(b, crop, size) for b in entry.get("ignore", [])) if share > 0]
+            for i, box in enumerate(entry["cars"]):
+                moved, share = _move(box, crop, size)
+                if share >= 0.5:
+                    cars.append(moved)
+                    if "ids" in entry:
+                        ids.append(entry["ids"][i])
+                elif share > 0:
+                    ignore.append(moved)
+            entry["cars"], entry["ignore"] = cars, ignore
+            if "ids" in entry:
+                entry["ids"] = ids
+        path = out_dir / f"{name}_{labels}.json"
+        path.write_text(json.dumps(doc))
+        written.append(path)
+    return written
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out_dir", type=Path)
+    args = ap.parse_args()
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    for name, (crop, size) in CAMERAS.items():
+        for path in make_camera(name, crop, size, args.out_dir):
+            print(path)
+
+
+if __name__ == "__main__":
+    main()
