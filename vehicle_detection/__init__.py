@@ -31,6 +31,8 @@ _API = {
     "extract_features": "features",
     "SearchPlan": "search",
     "SearchScale": "search",
+    "estimate_horizon": "horizon",
+    "vanishing_row": "horizon",
     "Tracker": "tracker",
     "TrackerConfig": "tracker",
     "process_video": "pipeline",
@@ -120,6 +122,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .images import list_images, read_image, write_image
     from .mining import MiningSource, mine_negatives, write_negatives
     from .search import SearchPlan, SearchScale
+    from .horizon import estimate_horizon, vanishing_row
     from .tracker import Tracker, TrackerConfig
     from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
     from .tracking_metrics import tracking_scores
