@@ -33,9 +33,9 @@ class DetectorConfig:
     image_threshold : float
         Heat a single image's blob must exceed (videos use the tracker's integrated threshold).
     auto_horizon : bool
-        When the plan fixes no ``horizon``, estimate the camera's horizon from the footage (a
-        video's first frames, or the image itself; :mod:`~vehicle_detection.horizon`) and move
-        the search bands to it. Where no estimate can be made, the plan is used as written.
+        When the plan fixes no ``horizon``, estimate the camera's horizon from a video's first
+        frames (:mod:`~vehicle_detection.horizon`) and move the search bands to it. Where no
+        estimate can be made, and for single images, the plan is used as written.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)

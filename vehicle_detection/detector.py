@@ -71,7 +71,7 @@ class Detector:
 
     @property
     def estimates_horizon(self) -> bool:
-        """Whether the search bands follow the camera's horizon estimated from the footage."""
+        """Whether the search bands follow the camera's horizon estimated from a video's first frames."""
         return self.config.auto_horizon and self.config.plan.horizon is None
 
     def with_horizon(self, horizon: float | None) -> Detector:
@@ -152,8 +152,8 @@ class Detector:
         image : ndarray of uint8, shape (H, W, 3)
         windows : Detections, optional
             The image's hot windows when already computed (:meth:`windows`), to search once.
-            Without them the image is searched, at the horizon estimated from the image itself
-            when :attr:`estimates_horizon` (where none can be, the plan as written).
+            An image is searched where the plan says (one frame is too little to estimate the
+            horizon reliably); a camera whose horizon sits elsewhere needs :meth:`with_horizon`.
 
         Returns
         -------
@@ -161,12 +161,7 @@ class Detector:
             One box per vehicle with the peak heat of its blob as ``score``; untracked.
         """
         if windows is None:
-            searcher = self
-            if self.estimates_horizon:
-                from .horizon import estimate_horizon
-
-                searcher = self.with_horizon(self._moved_to(estimate_horizon([image])))
-            windows = searcher.windows(image)
+            windows = self.windows(image)
         heat = self.heat(image.shape, windows)
         cfg = self.config.tracker
         boxes, peaks = heat_to_boxes(
@@ -182,12 +177,12 @@ class Detector:
     def step(self, frame: np.ndarray, tracker: Tracker) -> Detections:
         """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill).
 
-        With :attr:`estimates_horizon`, the horizon is estimated from the first frame.
+        Live, nothing is seen ahead, so the horizon is not estimated: the plan as written, or
+        :meth:`with_horizon`.
         """
-        det, _ = self.for_footage(iter((frame,)), tracker)
-        around = det._scheduled_around(tracker, tracker.state.frame_index)
-        wins = det.windows(frame) if around is None else det.windows(frame, around)
-        return det.track_step(frame.shape, wins, tracker)
+        around = self._scheduled_around(tracker, tracker.state.frame_index)
+        wins = self.windows(frame) if around is None else self.windows(frame, around)
+        return self.track_step(frame.shape, wins, tracker)
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""

@@ -8,9 +8,10 @@ move with it (``SearchPlan.horizon``).
 The vanishing row of one frame comes from its straight edges (Canny, probabilistic Hough): the
 lane lines and road edges rise towards the vanishing point from the left and from the right, so
 every pair of a left-hand and a right-hand segment that reaches into the lower part of the
-frame meets near it. The row is the length-weighted median of those crossings. Over a video,
-the estimate is the value most frames agree on, and only when enough of them do; otherwise
-there is none, and the plan stays as written.
+frame meets near it. The row is the length-weighted median of those crossings. One frame can
+be wrong (a car hiding the lane lines, other edges crossing): over a video, the estimate is the
+value most frames agree on, and only when enough of them do; otherwise there is none, and the
+plan stays as written. Single images are searched where the plan says, unless a horizon is given.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import numpy as np
 
 __all__ = ["vanishing_row", "estimate_horizon"]
 
-_HEIGHT = 720  # frames are measured at this height, where the thresholds below are set
+_HEIGHT = 540  # frames are measured at this height, where the thresholds below are set
+_AGREE = 0.015  # crossings this close to the median row (a fraction of the height) support it
 
 
 def vanishing_row(frame: np.ndarray) -> float | None:
@@ -36,7 +38,8 @@ def vanishing_row(frame: np.ndarray) -> float | None:
     -------
     float or None
         In ``[0.25, 0.75]``; None when the frame shows no pair of lines rising from the lower
-        part of the frame towards a common point (no lane lines or road edges).
+        part of the frame towards a common point (no lane lines or road edges), or when the
+        crossings scatter (less than half their weight within 1.5 % of the height of the median).
     """
     import cv2
 
@@ -49,7 +52,7 @@ def vanishing_row(frame: np.ndarray) -> float | None:
     top, bottom = int(0.35 * height), int(0.95 * height)
     gray = cv2.cvtColor(img[top:bottom], cv2.COLOR_RGB2GRAY)
     edges = cv2.Canny(cv2.GaussianBlur(gray, (5, 5), 0), 50, 150)
-    lines = cv2.HoughLinesP(edges, 1, np.pi / 180, 40, minLineLength=40, maxLineGap=20)
+    lines = cv2.HoughLinesP(edges, 1, np.pi / 180, 30, minLineLength=30, maxLineGap=15)
     if lines is None:
         return None
     seg = lines.reshape(-1, 4).astype(np.float64)
@@ -82,7 +85,10 @@ def vanishing_row(frame: np.ndarray) -> float | None:
     weights = (length[left][:, None] * length[right][None, :])[ok]
     order = np.argsort(rows)
     cum = np.cumsum(weights[order])
-    return float(rows[order][np.searchsorted(cum, cum[-1] / 2)] / height)
+    median = rows[order][np.searchsorted(cum, cum[-1] / 2)]
+    if weights[np.abs(rows - median) <= _AGREE * height].sum() < 0.5 * cum[-1]:
+        return None  # the crossings scatter: no single point the lines run to
+    return float(median / height)
 
 
 def estimate_horizon(
