@@ -162,6 +162,11 @@ def find_duplicates(digests: np.ndarray) -> list[np.ndarray]:
     return [np.sort(g) for g in splits if len(g) > 1]
 
 
+#: File names of mined patches (:mod:`~vehicle_detection.mining`):
+#: ``<input>__f<frame>__s<scale>_<x1>_<y1>_<x2>_<y2>.png``.
+MINED_NAME = re.compile(r"^(?P<stem>.+)__f(?P<frame>\d+)__s(?P<scale>\d+)_(?P<box>\d+_\d+_\d+_\d+)\.png$")
+
+
 def _group_keys(sources: np.ndarray, names: np.ndarray, track_length: int) -> list[str]:
     """The archives' grouping: folder and block of ``track_length`` consecutive file numbers."""
     return [f"{s}#{_file_number(n) // track_length}" for s, n in zip(sources, names)]
@@ -169,8 +174,6 @@ def _group_keys(sources: np.ndarray, names: np.ndarray, track_length: int) -> li
 
 def _extra_group_keys(sources: np.ndarray, names: np.ndarray, track_length: int) -> list[str]:
     """Extra negatives: mined patches by input and block of frames, others by file-number block."""
-    from .mining import MINED_NAME
-
     keys = []
     for s, n in zip(sources, names):
         m = MINED_NAME.match(n.rsplit("/", 1)[-1])

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ._files import PARTIAL_SUFFIX
+from .data import MINED_NAME
 from .detections import Detections
 from .errors import InputError, OutputError
 from .evaluate import Annotations, FrameLabels
@@ -64,8 +65,6 @@ __all__ = [
     "MINED_NAME",
 ]
 
-#: File names of mined patches: ``<input>__f<frame>__s<scale>_<x1>_<y1>_<x2>_<y2>.png``.
-MINED_NAME = re.compile(r"^(?P<stem>.+)__f(?P<frame>\d+)__s(?P<scale>\d+)_(?P<box>\d+_\d+_\d+_\d+)\.png$")
 _SOURCE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 
