@@ -139,3 +139,31 @@ def test_cli_horizon_values(value, auto, horizon):
     config = _load_detector(None, args.horizon).config
     assert config.auto_horizon is auto and config.plan.horizon == horizon
     assert Detector(config=config).estimates_horizon is (auto and horizon is None)
+
+
+def test_cli_reports_the_estimated_horizon(tmp_path, capsys):
+    from vehicle_detection.cli import main
+    from vehicle_detection.video import VideoWriter
+
+    video = tmp_path / "tilted.mp4"
+    with VideoWriter(video, 25, (1280, 720)) as writer:
+        for frame in _first_frames(REPO / "test_video.mp4", 12):
+            writer.write(shifted(frame, 72))
+    assert main(["detect", str(video), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    line = [l for l in out.splitlines() if l.startswith("horizon: ")]
+    assert len(line) == 1 and float(line[0].split()[1]) == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.01)
+    assert main(["detect", str(REPO / "test_video.mp4"), "--out", str(tmp_path / "o.mp4"), "--boxes", str(tmp_path / "o.csv"),
+                 "--no-progress"]) == 0
+    assert "horizon: " not in capsys.readouterr().out  # the project camera: the plan as written
+
+
+def test_process_video_continues_a_given_tracker_only_at_its_frame(tmp_path):
+    from vehicle_detection.pipeline import process_video
+
+    detector = Detector()
+    tracker = detector.new_tracker()
+    table = process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, max_frames=6, tracker=tracker)
+    assert tracker.state.frame_index == 6 and tracker.state.horizon_searched and set(table.frame) <= set(range(6))
+    with pytest.raises(ValueError, match="continues at frame 6, not at start=0"):
+        process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, max_frames=6, tracker=tracker)

@@ -680,13 +680,18 @@ def _cmd_detect_one(args) -> int:
     # file, no new folder, and every previous output (--overwrite) exactly as it was.
     with output_batch():
         if kind == "video":
+            tracker = detector.new_tracker()
             table = process_video(
                 inp, out, detector=detector, overwrite=args.overwrite, progress=not args.no_progress,
-                preset=args.preset, crf=args.crf, camera=camera, lanes=lanes, lanes_csv=lanes_csv,
+                preset=args.preset, crf=args.crf, camera=camera, lanes=lanes, lanes_csv=lanes_csv, tracker=tracker,
             )
             write_boxes_csv(boxes, table, overwrite=args.overwrite, inputs=inputs)
             n = len(table.frames())
             report = [f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)"]
+            if tracker.state.horizon is not None:
+                plan = detector.config.plan
+                report.append(f"horizon: {tracker.state.horizon:.3f} of the frame height, estimated from the video "
+                              f"(the plan's {plan.reference_horizon:.3f}); search bands moved accordingly")
             if lanes_csv is not None:
                 report.append(f"lanes: {lanes_csv}")
         else:

@@ -78,6 +78,7 @@ def process_video(
     lanes: bool = False,
     lanes_csv: str | os.PathLike | None = None,
     birds_eye=None,
+    tracker=None,
 ):
     """Detect and track vehicles through a video; write the annotated video and the boxes.
 
@@ -122,6 +123,9 @@ def process_video(
     birds_eye : BirdsEye, optional
         The road-plane transform; default ``camera.birds_eye``. When known, every box gets
         ``distance_m`` and ``relative_speed_mps`` in its ``data`` (NaN where unknown).
+    tracker : Tracker, optional
+        The tracker to advance (``detector.new_tracker()`` by default; its frame counter must be
+        at ``start``). Afterwards its ``state`` tells, for instance, the horizon the search used.
 
     Returns
     -------
@@ -179,11 +183,12 @@ def process_video(
 
         distances = DistanceTracker(birds_eye, info.fps or 25.0)
     lane_rows = []
-    tracker = detector.new_tracker()
-    if start:
+    if tracker is None:
         from .tracker import Tracker, TrackerState
 
         tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))  # frames keep their decoded index
+    elif tracker.state.frame_index != start:
+        raise ValueError(f"the tracker continues at frame {tracker.state.frame_index}, not at start={start}")
     detections = []
     frames = read_frames(path)
     try:
