@@ -53,6 +53,34 @@ def small_model(dataset):
     return VehicleClassifier.fit(extract_features(dataset.images[idx], cfg), dataset.labels[idx], cfg)
 
 
+def small_archives(folder: Path, per_class: int) -> Path:
+    """``vehicles.zip`` and ``non-vehicles.zip`` in ``folder`` with ``per_class`` images of each
+    class, spread evenly over the shared archives (every source folder, many file-number blocks)."""
+    import zipfile
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for cls in ("vehicles", "non-vehicles"):
+        with zipfile.ZipFile(shared_data_dir() / f"{cls}.zip") as src, zipfile.ZipFile(folder / f"{cls}.zip", "w") as dst:
+            names = sorted(n for n in src.namelist() if n.endswith(".png"))
+            for name in names[:: len(names) // per_class][:per_class]:
+                dst.writestr(name, src.read(name))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def long_video(tmp_path_factory):
+    """``test_video.mp4`` looped 6 times (228 frames, no re-encoding): longer than a run lasts
+    before a test stops it."""
+    import media
+
+    video = REPO / "test_video.mp4"
+    if not video.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    path = tmp_path_factory.mktemp("long") / "long.mp4"
+    media.copy_packets(video, path, loops=6)
+    return path
+
+
 @pytest.fixture(scope="session")
 def test_frames():
     """The six committed 1280x720 test images, RGB uint8."""

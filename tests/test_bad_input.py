@@ -421,16 +421,6 @@ def test_video_failing_at_the_end_takes_the_csv_with_it(tmp_path, monkeypatch):
 # ----------------------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def long_video(tmp_path_factory):
-    if not TEST_VIDEO.is_file():
-        pytest.skip("test_video.mp4 not in the checkout")
-    path = tmp_path_factory.mktemp("long") / "long.mp4"
-    # 6 x 38 frames: far more than the run lasts before it is stopped.
-    media.copy_packets(TEST_VIDEO, path, loops=6)
-    return path
-
-
 def _processes_mentioning(text: str) -> list[int]:
     found = []
     for entry in os.listdir("/proc"):

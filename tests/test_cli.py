@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from conftest import small_archives
 from PIL import Image
 
 import media
@@ -433,13 +435,7 @@ def test_readme_documents_the_exit_codes():
 
 @needs_archives
 def test_train_json_on_a_small_data_folder(tmp_path, capsys):
-    data = tmp_path / "data"
-    data.mkdir()
-    for cls in ("vehicles", "non-vehicles"):
-        with zipfile.ZipFile(SHARED / f"{cls}.zip") as src, zipfile.ZipFile(data / f"{cls}.zip", "w") as dst:
-            names = sorted(n for n in src.namelist() if n.endswith(".png"))
-            for name in names[:: len(names) // 150][:150]:  # every folder, many file-number blocks
-                dst.writestr(name, src.read(name))
+    data = small_archives(tmp_path / "data", 150)
     model = tmp_path / "m.npz"
     assert main(["train", "--data-dir", str(data), "--json", "--model", str(model)]) == 0
     report = last_json(capsys.readouterr().out)

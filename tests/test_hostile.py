@@ -336,20 +336,11 @@ def _stop_when(proc: subprocess.Popen, ready, sig: int) -> tuple[str, str]:
             proc.wait()
 
 
-@pytest.fixture(scope="module")
-def long_clip(tmp_path_factory):
-    if not TEST_VIDEO.is_file():
-        pytest.skip("test_video.mp4 not in the checkout")
-    path = tmp_path_factory.mktemp("long") / "long.mp4"
-    media.copy_packets(TEST_VIDEO, path, loops=6)
-    return path
-
-
 @posix_only
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
-def test_signal_midway_through_a_video_keeps_previous_outputs(tmp_path, long_clip, sig):
+def test_signal_midway_through_a_video_keeps_previous_outputs(tmp_path, long_video, sig):
     video = tmp_path / "drive.mp4"
-    shutil.copy(long_clip, video)
+    shutil.copy(long_video, video)
     out, csv = tmp_path / "drive_detected.mp4", tmp_path / "drive_boxes.csv"
     out.write_bytes(b"previous video")
     csv.write_text("previous boxes\n")

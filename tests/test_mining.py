@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from conftest import small_archives
 from PIL import Image
 
 from vehicle_detection.classifier import VehicleClassifier
@@ -316,13 +318,7 @@ def test_cli_mine_negatives_writes_and_refuses_to_overwrite(tmp_path, capsys):
 
 @needs_archives
 def test_cli_train_with_extra_negatives(tmp_path, capsys):
-    data = tmp_path / "data"
-    data.mkdir()
-    for cls in ("vehicles", "non-vehicles"):
-        with zipfile.ZipFile(SHARED / f"{cls}.zip") as src, zipfile.ZipFile(data / f"{cls}.zip", "w") as dst:
-            names = sorted(n for n in src.namelist() if n.endswith(".png"))
-            for name in names[:: len(names) // 100][:100]:
-                dst.writestr(name, src.read(name))
+    data = small_archives(tmp_path / "data", 100)
     extra = tmp_path / "mined"
     write_negatives(_mined(20), extra, "HardNegatives")
     model = tmp_path / "m.npz"
