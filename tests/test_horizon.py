@@ -167,3 +167,12 @@ def test_process_video_continues_a_given_tracker_only_at_its_frame(tmp_path):
     assert tracker.state.frame_index == 6 and tracker.state.horizon_searched and set(table.frame) <= set(range(6))
     with pytest.raises(ValueError, match="continues at frame 6, not at start=0"):
         process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, max_frames=6, tracker=tracker)
+
+
+def test_detector_load(tmp_path):
+    default = Detector()
+    assert Detector.load().config == default.config and np.array_equal(Detector.load().model.weights, default.model.weights)
+    assert not Detector.load(horizon="plan").estimates_horizon
+    path = default.model.replace(detector_config=default.config.at_horizon(0.5)).save(tmp_path / "m.npz")
+    assert Detector.load(path).config.plan.horizon == 0.5
+    assert Detector.load(path, horizon="auto").estimates_horizon

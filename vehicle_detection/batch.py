@@ -203,11 +203,9 @@ _THREADS: int | None = None
 def _detector(model: str | None, horizon: float | str | None):
     key = (model, horizon)
     if key not in _DETECTORS:
-        from .classifier import VehicleClassifier, load_default_model
         from .detector import Detector
 
-        m = VehicleClassifier.load(model) if model else load_default_model()
-        _DETECTORS[key] = Detector(m, m.detector_config.at_horizon(horizon))
+        _DETECTORS[key] = Detector.load(model or None, horizon=horizon)
     return _DETECTORS[key]
 
 

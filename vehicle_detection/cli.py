@@ -513,14 +513,13 @@ def _load_camera(path):
 
 
 def _load_detector(model_path, horizon: float | str | None = None, full_search_every: int | None = None):
-    from .classifier import VehicleClassifier, load_default_model
     from .detector import Detector
 
-    model = VehicleClassifier.load(model_path) if model_path else load_default_model()
-    config = model.detector_config.at_horizon(horizon)
-    if full_search_every is not None:
-        config = config.replace(plan=dataclasses.replace(config.plan, full_search_every=full_search_every))
-    return Detector(model, config)
+    detector = Detector.load(model_path or None, horizon=horizon)
+    if full_search_every is None:
+        return detector
+    config = detector.config
+    return Detector(detector.model, config.replace(plan=dataclasses.replace(config.plan, full_search_every=full_search_every)))
 
 
 def _default_outputs(inp: Path, kind: str):

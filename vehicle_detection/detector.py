@@ -66,6 +66,13 @@ class Detector:
         if not isinstance(self.config, DetectorConfig):
             raise ValueError(f"config must be a DetectorConfig; got {type(self.config).__name__}")
 
+    @classmethod
+    def load(cls, path=None, *, horizon: float | str | None = None) -> Detector:
+        """A detector from a model file (the embedded model when ``path`` is None), with its
+        saved settings, searching at ``horizon`` (see :meth:`DetectorConfig.at_horizon`)."""
+        model = load_default_model() if path is None else VehicleClassifier.load(path)
+        return cls(model, model.detector_config.at_horizon(horizon))
+
     def __repr__(self) -> str:
         return f"Detector({self.model!r}, {self.config!r})"
 
