@@ -376,8 +376,6 @@ def track_chunk(path, start: int, end: int | None, state=None, *, detector=None,
     :func:`~vehicle_detection.pipeline.process_video` returns.
     """
     import itertools
-    from collections import deque
-    from concurrent.futures import ThreadPoolExecutor
 
     from .tracker import Tracker, TrackerState
     from .video import read_frames
@@ -388,24 +386,13 @@ def track_chunk(path, start: int, end: int | None, state=None, *, detector=None,
     if state.frame_index != start:
         raise ValueError(f"the tracker state continues at frame {state.frame_index}, not at {start}; chunks must follow each other")
     tracker = Tracker(detector.config.tracker, state)
-    workers = workers or _THREADS or 2
-    steps = []
     frames = read_frames(path)
     try:
-        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-            pending: deque = deque()
-            # The first chunk estimates the camera's horizon; the state carries it to the others.
-            detector, chunk = detector.for_footage(itertools.islice(frames, start, end), tracker)
-            for frame in chunk:
-                pending.append((frame.shape, pool.submit(detector.windows, frame)))
-                while len(pending) > workers:
-                    shape, fut = pending.popleft()
-                    index = tracker.state.frame_index
-                    steps.append((index, detector.track_step(shape, fut.result(), tracker), tracker.backfill))
-            while pending:
-                shape, fut = pending.popleft()
-                index = tracker.state.frame_index
-                steps.append((index, detector.track_step(shape, fut.result(), tracker), tracker.backfill))
+        # The first chunk estimates the camera's horizon; the state carries it to the others.
+        steps = [
+            (index, found, backfill)
+            for _, index, found, backfill in detector._steps(itertools.islice(frames, start, end), tracker, workers or _THREADS or 2)
+        ]
     finally:
         frames.close()
     return steps, tracker.state.copy()

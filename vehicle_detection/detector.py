@@ -214,28 +214,48 @@ class Detector:
         searches are searched around the tracks live when the frame is submitted (the tracker
         then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
         """
-        from ._warmup import compile_search_kernels
+        from contextlib import closing
 
-        compile_search_kernels(self.model)  # on a fresh install, on both cores
         tracker = tracker or self.new_tracker()
-        det, frames = self.for_footage(iter(frames), tracker)
-        submitted = tracker.state.frame_index
         lag = max(0, self.config.tracker.min_hits - 1)
         held: deque = deque()  # [frame, index, detections], oldest first
-
-        def advance(frame, wins):
-            index = tracker.state.frame_index
-            found = det.track_step(frame.shape, wins, tracker)
-            fill = tracker.backfill
-            for entry in held if len(fill) else ():
-                extra = fill.at_frame(entry[1])
-                if len(extra):
-                    entry[2] = Detections.concatenate([entry[2], extra])
-            held.append([frame, index, found])
 
         def release():
             frame, _, found = held.popleft()
             return frame, found[np.argsort(found.track_id, kind="stable")]
+
+        with closing(self._steps(frames, tracker, workers)) as steps:
+            for frame, index, found, fill in steps:
+                for entry in held if len(fill) else ():
+                    extra = fill.at_frame(entry[1])
+                    if len(extra):
+                        entry[2] = Detections.concatenate([entry[2], extra])
+                held.append([frame, index, found])
+                while len(held) > lag:
+                    yield release()
+        while held:
+            yield release()
+
+    def _steps(
+        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int
+    ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
+        """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
+
+        The next ``workers`` frames are searched in a thread pool meanwhile. ``backfill`` is
+        the tracker's back-fill after the frame (boxes for earlier frames of newly confirmed
+        tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
+        (:func:`~vehicle_detection.batch.track_chunk`) keeps the steps to join them later.
+        """
+        from ._warmup import compile_search_kernels
+
+        compile_search_kernels(self.model)  # on a fresh install, on both cores
+        det, frames = self.for_footage(iter(frames), tracker)
+        submitted = tracker.state.frame_index
+
+        def advance(frame, future):
+            index = tracker.state.frame_index
+            found = det.track_step(frame.shape, future.result(), tracker)
+            return frame, index, found, tracker.backfill
 
         pending: deque = deque()
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
@@ -246,20 +266,12 @@ class Detector:
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
                     pending.append((frame, pool.submit(det.windows, *args)))
                     if len(pending) > workers:
-                        f, fut = pending.popleft()
-                        advance(f, fut.result())
-                        while len(held) > lag:
-                            yield release()
+                        yield advance(*pending.popleft())
                 while pending:
-                    f, fut = pending.popleft()
-                    advance(f, fut.result())
-                    while len(held) > lag:
-                        yield release()
-                while held:
-                    yield release()
+                    yield advance(*pending.popleft())
             finally:
-                for _, fut in pending:
-                    fut.cancel()
+                for _, future in pending:
+                    future.cancel()
 
     def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2) -> Iterator[Detections]:
         """Detect and follow vehicles through a sequence of RGB ``uint8`` frames.
