@@ -8,8 +8,8 @@ import pytest
 
 from conftest import REPO
 from vehicle_detection.config import DetectorConfig
-from vehicle_detection.detector import HORIZON_TOLERANCE, Detector
-from vehicle_detection.horizon import estimate_horizon, vanishing_row
+from vehicle_detection.detector import Detector
+from vehicle_detection.horizon import TOLERANCE, estimate_horizon, vanishing_row
 from vehicle_detection.images import read_image
 from vehicle_detection.search import SearchPlan
 
@@ -64,7 +64,7 @@ def _first_frames(path, n=25):
 def test_project_camera_sits_at_the_reference_horizon(test_frames):
     reference = SearchPlan().reference_horizon
     rows = [r for r in map(vanishing_row, test_frames) if r is not None]
-    assert len(rows) >= 4 and max(abs(r - reference) for r in rows) <= HORIZON_TOLERANCE
+    assert len(rows) >= 4 and max(abs(r - reference) for r in rows) <= TOLERANCE
     assert estimate_horizon(_first_frames(REPO / "test_video.mp4")[::2]) == pytest.approx(reference, abs=0.003)
 
 

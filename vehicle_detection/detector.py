@@ -33,9 +33,6 @@ __all__ = ["Detector"]
 
 #: Frames at the start of a video that the horizon is estimated from (every second one).
 HORIZON_FRAMES = 25
-#: An estimated horizon this close to the plan's reference horizon (a fraction of the frame
-#: height; the estimate's own spread on one camera) leaves the bands where they are.
-HORIZON_TOLERANCE = 0.015
 
 
 class Detector:
@@ -91,7 +88,9 @@ class Detector:
 
     def _moved_to(self, estimate: float | None) -> float | None:
         """The horizon to search at for an estimate: None when there is none or it is the reference's."""
-        if estimate is None or abs(estimate - self.config.plan.reference_horizon) <= HORIZON_TOLERANCE:
+        from .horizon import TOLERANCE
+
+        if estimate is None or abs(estimate - self.config.plan.reference_horizon) <= TOLERANCE:
             return None
         return estimate
 
@@ -101,7 +100,7 @@ class Detector:
         With :attr:`estimates_horizon`, the horizon is estimated from the first
         :data:`HORIZON_FRAMES` frames the first time (and kept in ``tracker.state``, so later
         chunks of the same video use it too); the returned detector searches there, unless the
-        estimate lies within :data:`HORIZON_TOLERANCE` of the plan's ``reference_horizon``.
+        estimate lies within :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
         """
         if not self.estimates_horizon:
             return self, frames

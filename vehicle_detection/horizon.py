@@ -20,10 +20,12 @@ from collections.abc import Iterable
 
 import numpy as np
 
-__all__ = ["vanishing_row", "estimate_horizon"]
+__all__ = ["vanishing_row", "estimate_horizon", "TOLERANCE"]
 
 _HEIGHT = 540  # frames are measured at this height, where the thresholds below are set
-_AGREE = 0.015  # crossings this close to the median row (a fraction of the height) support it
+#: The estimate's precision, a fraction of the frame height: crossings of one frame, and rows of
+#: several frames, this close together agree; a horizon this close to the plan's reference is it.
+TOLERANCE = 0.015
 
 
 def vanishing_row(frame: np.ndarray) -> float | None:
@@ -86,13 +88,13 @@ def vanishing_row(frame: np.ndarray) -> float | None:
     order = np.argsort(rows)
     cum = np.cumsum(weights[order])
     median = rows[order][np.searchsorted(cum, cum[-1] / 2)]
-    if weights[np.abs(rows - median) <= _AGREE * height].sum() < 0.5 * cum[-1]:
+    if weights[np.abs(rows - median) <= TOLERANCE * height].sum() < 0.5 * cum[-1]:
         return None  # the crossings scatter: no single point the lines run to
     return float(median / height)
 
 
 def estimate_horizon(
-    frames: Iterable[np.ndarray], *, tolerance: float = 0.015, min_share: float = 0.6, min_frames: int = 1
+    frames: Iterable[np.ndarray], *, tolerance: float = TOLERANCE, min_share: float = 0.6, min_frames: int = 1
 ) -> float | None:
     """The horizon most of ``frames`` agree on (:func:`vanishing_row`), or None.
 

@@ -112,11 +112,6 @@ class BirdsEye:
 
         return cv2.warpPerspective(image, self.M, self.warped_size, flags=cv2.INTER_LINEAR)
 
-    def unwarp(self, image: np.ndarray) -> np.ndarray:
-        import cv2
-
-        return cv2.warpPerspective(image, self.Minv, self.image_size, flags=cv2.INTER_LINEAR)
-
     def to_warped(self, points) -> np.ndarray:
         """Camera pixels ``(n, 2)`` -> warped pixels ``(n, 2)`` (NaN beyond the horizon)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
