@@ -37,6 +37,10 @@ REPO = Path(__file__).resolve().parents[1]
 CLIP_A = REPO / "dev_set" / "project_video_clip_A.mp4"
 SHORT = REPO / "test_video.mp4"
 
+sys.path[:0] = [str(REPO / "tests"), str(REPO / "benchmarks")]
+from bench_detection import plain_decode_encode  # noqa: E402  the reference loop, shared
+from media import copy_packets, decoded_count  # noqa: E402  the tests' helpers for made-up clips
+
 
 def _env(cache: Path) -> dict:
     env = dict(os.environ)
@@ -64,34 +68,7 @@ def run_detect(video: Path, tmp: Path, cache: Path, extra: list[str]) -> tuple[f
 
 def loop_clip(src: Path, dest: Path, loops: int) -> Path:
     """Stream-copy the video of ``src`` ``loops`` times over into ``dest`` (PyAV, no re-encoding)."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from media import copy_packets  # the tests' helper for made-up clips
-
     return copy_packets(src, dest, loops=loops)
-
-
-def plain_decode_encode(src: Path, dest: Path) -> int:
-    """Decode every frame to RGB and encode it (libx264 ultrafast, crf 23) in one plain loop; frames."""
-    import av
-
-    n = 0
-    with av.open(os.fspath(src)) as inp, av.open(os.fspath(dest), "w", format="mp4") as out:
-        ist = inp.streams.video[0]
-        ost = out.add_stream("libx264", rate=ist.average_rate, options={"preset": "ultrafast", "crf": "23"})
-        ost.width, ost.height, ost.pix_fmt = ist.codec_context.width, ist.codec_context.height, "yuv420p"
-        for frame in inp.decode(ist):
-            rgb = frame.to_ndarray(format="rgb24")
-            out.mux(ost.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
-            n += 1
-        out.mux(ost.encode(None))
-    return n
-
-
-def frames_in(path: Path) -> int:
-    import av
-
-    with av.open(os.fspath(path)) as inp:
-        return sum(1 for _ in inp.decode(video=0))
 
 
 def _stats(xs: list[float], fmt: str = "{:.2f}") -> str:
@@ -131,7 +108,7 @@ def main():
         run_detect(SHORT, tmp, cache, extra)  # fill the cache
         one = loop_clip(CLIP_A, tmp / "clip_A_x1.mp4", 1)
         long = loop_clip(CLIP_A, tmp / f"clip_A_x{args.long_loops}.mp4", args.long_loops)
-        n_one, n_long = frames_in(one), frames_in(long)
+        n_one, n_long = decoded_count(one), decoded_count(long)
         e2e, plain, ratio, rss_one, rss_long = [], [], [], [], []
         for i in range(args.runs):
             t = time.perf_counter()

@@ -101,7 +101,7 @@ def estimate_horizon(
     Parameters
     ----------
     frames : iterable of ndarray of uint8, shape (H, W, 3)
-        Frames of one camera (a video's first second or so, or one image).
+        Frames of one camera (a video's first frames, or one image).
     tolerance : float
         Two frames agree when their rows differ by at most this fraction of the frame height.
     min_share : float
