@@ -105,7 +105,16 @@ class _Task:
 # --- inputs and output names --------------------------------------------------------------------
 
 
-def _kind(path: Path) -> str | None:
+def unknown_type(path: Path) -> str:
+    """The one-line error for an input that is no image, video or folder."""
+    from .images import IMAGE_EXTENSIONS
+
+    return (f"{path}: unknown file type {path.suffix!r}; expected an image ({', '.join(IMAGE_EXTENSIONS)}) "
+            f"or a video ({', '.join(VIDEO_EXTENSIONS)})")
+
+
+def input_kind(path: Path) -> str | None:
+    """``"folder"``, ``"image"`` or ``"video"`` by what ``path`` is (a folder) or its suffix; None: neither."""
     from .images import IMAGE_EXTENSIONS
 
     if path.is_dir():
@@ -145,14 +154,14 @@ def expand_inputs(specs: Iterable[str | os.PathLike]) -> list[tuple[Path, str | 
                 add(p, None, f"{p}: no file matches this pattern")
             for m in matches:
                 mp = Path(m)
-                kind = _kind(mp)
+                kind = input_kind(mp)
                 if kind is not None:
                     add(mp, kind)
             continue
         if not p.exists():
             add(p, None, f"{p}: no such file or folder")
             continue
-        kind = _kind(p)
+        kind = input_kind(p)
         if kind == "folder":
             entries = sorted(e for e in p.iterdir() if e.is_file() and not e.name.startswith("."))
             videos = [e for e in entries if e.suffix.lower() in VIDEO_EXTENSIONS]
@@ -162,7 +171,7 @@ def expand_inputs(specs: Iterable[str | os.PathLike]) -> list[tuple[Path, str | 
             if images or not videos:
                 add(p, "folder", None if images else f"{p}: no videos or images in this folder")
         elif kind is None:
-            add(p, None, f"{p}: unknown file type {p.suffix!r}; expected an image ({', '.join(IMAGE_EXTENSIONS)}) or a video ({', '.join(VIDEO_EXTENSIONS)})")
+            add(p, None, unknown_type(p))
         else:
             add(p, kind)
     return out

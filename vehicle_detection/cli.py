@@ -29,7 +29,6 @@ from .errors import InputError, OutputError, UsageError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
-VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts", ".m2ts", ".mts")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -522,16 +521,6 @@ def _load_detector(model_path, horizon: float | str | None = None, full_search_e
     return Detector(detector.model, config.replace(plan=dataclasses.replace(config.plan, full_search_every=full_search_every)))
 
 
-def _default_outputs(inp: Path, kind: str):
-    if inp.name in ("", ".", ".."):  # "." or "..": name the outputs after the real folder
-        inp = Path(os.path.abspath(inp))
-    if kind == "video":
-        return inp.with_name(f"{inp.stem}_detected.mp4"), inp.with_name(f"{inp.stem}_boxes.csv")
-    if kind == "image":
-        return inp.with_name(f"{inp.stem}_detected{inp.suffix}"), inp.with_name(f"{inp.stem}_boxes.csv")
-    return inp.with_name(f"{inp.name}_detected"), inp.with_name(f"{inp.name}_detected") / "boxes.csv"
-
-
 #: Exit status of a batch in which some inputs failed (each is reported on stderr).
 SOME_FAILED = 7
 
@@ -626,22 +615,19 @@ def _cmd_detect_one(args) -> int:
     from ._files import check_output_path, output_batch
     from .detections import Detections
     from .drawing import draw_detections
-    from .images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
+    from .images import check_image_output, list_images, read_image, write_image
+    from .batch import default_outputs, input_kind, unknown_type
     from .tables import write_boxes_csv
     from .pipeline import process_video
 
     inp = Path(args.input)
     if not inp.exists():
         raise InputError(f"{inp}: no such file or folder")
-    if inp.is_dir():
-        kind = "folder"
-    elif inp.suffix.lower() in IMAGE_EXTENSIONS:
-        kind = "image"
-    elif inp.suffix.lower() in VIDEO_EXTENSIONS:
-        kind = "video"
-    else:
-        raise InputError(f"{inp}: unknown file type {inp.suffix!r}; expected an image ({', '.join(IMAGE_EXTENSIONS)}) or a video ({', '.join(VIDEO_EXTENSIONS)})")
-    default_out, default_boxes = _default_outputs(inp, kind)
+    kind = input_kind(inp)
+    if kind is None:
+        raise InputError(unknown_type(inp))
+    default_out, tables = default_outputs(inp, kind)
+    default_boxes = tables["csv"]
     out = Path(args.out) if args.out else default_out
     boxes = Path(args.boxes) if args.boxes else default_boxes
     # Refuse bad outputs before any work. The model file is an input too.
