@@ -13,18 +13,18 @@ search = importlib.import_module("vehicle_detection.search")
 
 
 def test_without_restores_the_kernels_and_zeroes_outputs():
-    before = (features._region_variants, search._score_hog, search._block_maps)
+    before = (features._region_variants, search._score_hog, search._colour_sums, search._score_colour)
     with _warmup._without(_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS):
         assert features._region_variants is _warmup._zero_last
         out = np.ones(3)
         search._score_hog(1, 2, out)
         assert not out.any()
-    assert (features._region_variants, search._score_hog, search._block_maps) == before
+    assert (features._region_variants, search._score_hog, search._colour_sums, search._score_colour) == before
 
 
 def test_every_kernel_is_compiled_by_one_side():
     names = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS}
-    assert names == {"_region_variants", "_colour_sums", "_score_colour", "_block_maps", "_score_hog"}
+    assert names == {"_region_variants", "_colour_sums", "_score_colour", "_score_hog"}
     for mod, fn, prefix in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS:
         assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
 

@@ -2,12 +2,13 @@
 
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
 kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
-process that compiles the HOG scoring kernel and the two colour kernels into the cache while this
-process compiles the HOG cell and block kernels (the first half of a real band's scoring, on a
-blank frame, so with exactly the argument types of a real search); this process then loads the
-helper's kernels from the cache. The helper runs a real search on a blank frame with this
-process's kernels replaced by no-ops (in the helper only: nothing is replaced here, so a search
-running in another thread meanwhile is unaffected). On a warm cache nothing happens here (the
+process that compiles the HOG block kernel (normalising and scoring the blocks, the largest)
+into the cache while this process compiles the others, the HOG cells and the two colour
+kernels (a real band's scoring without the blocks, on a blank frame, so with exactly the
+argument types of a real search); this process then loads the helper's kernel from the cache.
+The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
+(in the helper only: nothing is replaced here, so a search running in another thread meanwhile
+is unaffected). On a warm cache nothing happens here (the
 kernels load on first use), nor when the machine has no idle core (1-minute load average above
 the number of cores minus one): there the helper would only compete. The results never depend
 on this: a kernel the helper did not provide in time is compiled here as usual.
@@ -31,15 +32,13 @@ __all__ = ["compile_search_kernels"]
 _DONE = threading.Event()
 _LOCK = threading.Lock()
 # (module the search calls it through, name, cache file prefix)
-_HELPER_KERNELS = (
-    ("search", "_score_hog", "search._score_hog-"),
+_HELPER_KERNELS = (("search", "_score_hog", "search._score_hog-"),)
+_MAIN_KERNELS = (
+    ("features", "_region_variants", "features._region_variants-"),
     ("search", "_colour_sums", "search._colour_sums-"),
     ("search", "_score_colour", "search._score_colour-"),
 )
-_MAIN_KERNELS = (
-    ("features", "_region_variants", "features._region_variants-"),
-    ("search", "_block_maps", "features._block_maps-"),
-)
+
 
 def _module(name: str):
     import importlib
@@ -103,12 +102,12 @@ def _blank_band(model):
 
 
 def _compile_main(model) -> None:
-    """This process's half: the HOG cell and block kernels, by the real code path, nothing replaced."""
+    """This process's half: every kernel but the HOG blocks', by the real code path, nothing replaced."""
     from .search import _score_band
 
     band = _blank_band(model)
     if band is not None:
-        _score_band(band, model, reuse=False, hog_only=True)
+        _score_band(band, model, reuse=False, hog_blocks=False)
 
 
 def compile_search_kernels(model) -> None:

@@ -541,17 +541,10 @@ def _gather_block(variants, r, c, cpb, vclass, hclass, block):
     _l2hys(block)
 
 
-@njit(nogil=True, fastmath=True)
-def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
-    """Normalised blocks of several border classes, only at the positions marked as needed.
-
-    classes (k, 2) int: (vertical, horizontal) class of each map (see :func:`_gather_block`);
-    need_rows (k, n_br) and need_cols (k, n_bc) bool; out (k, n_br, n_bc, bs), float32 or
-    float64, left untouched where not needed. Same arithmetic as :func:`_gather_block`
-    followed by :func:`_l2hys`, with each cell's sum of squares computed once.
-    """
+@njit(nogil=True)
+def _cell_squares(variants, ss):
+    """Sum of squares of every cell histogram of every variant: ss (3, 3, n_cr, n_cc) float64."""
     n_cr, n_cc, nb = variants.shape[2], variants.shape[3], variants.shape[4]
-    ss = np.empty((3, 3, n_cr, n_cc))
     for a in range(3):
         for b in range(3):
             for r in range(n_cr):
@@ -560,35 +553,35 @@ def _block_maps(variants, cpb, classes, need_rows, need_cols, out):
                     for o in range(nb):
                         t += variants[a, b, r, c, o] * variants[a, b, r, c, o]
                     ss[a, b, r, c] = t
-    for k in range(classes.shape[0]):
-        vclass, hclass = classes[k, 0], classes[k, 1]
-        for r in range(out.shape[1]):
-            if not need_rows[k, r]:
-                continue
-            for c in range(out.shape[2]):
-                if not need_cols[k, c]:
-                    continue
-                blk = out[k, r, c]
-                s1 = 0.0
-                for a in range(cpb):
-                    vr = _edge_variant(vclass, a, cpb)
-                    for b in range(cpb):
-                        s1 += ss[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
-                inv1 = 1.0 / math.sqrt(s1 + 1e-10)
-                s2 = 0.0
-                i = 0
-                for a in range(cpb):
-                    vr = _edge_variant(vclass, a, cpb)
-                    for b in range(cpb):
-                        src = variants[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
-                        for o in range(nb):
-                            v = min(src[o] * inv1, 0.2)
-                            blk[i] = v
-                            s2 += v * v
-                            i += 1
-                inv2 = 1.0 / math.sqrt(s2 + 1e-10)
-                for j in range(i):
-                    blk[j] = blk[j] * inv2
+
+
+@njit(nogil=True, fastmath=True, inline="always")
+def _clipped_block(variants, ss, r, c, cpb, vclass, hclass, block):
+    """L2-Hys of the block at (r, c) of a border class, but for its last scale factor.
+
+    Writes the block's first-normalised, clipped values into ``block`` (float32 or float64)
+    and returns the factor that finishes the normalisation: ``block * factor`` is what
+    :func:`_gather_block` followed by :func:`_l2hys` gives. The cells' sums of squares ``ss``
+    come from :func:`_cell_squares`, each computed once for every block it is in.
+    """
+    nb = variants.shape[4]
+    s1 = 0.0
+    for a in range(cpb):
+        vr = _edge_variant(vclass, a, cpb)
+        for b in range(cpb):
+            s1 += ss[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
+    inv1 = 1.0 / math.sqrt(s1 + 1e-10)
+    s2 = 0.0
+    for a in range(cpb):
+        vr = _edge_variant(vclass, a, cpb)
+        for b in range(cpb):
+            src = variants[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
+            base = (a * cpb + b) * nb
+            for o in range(nb):
+                v = min(src[o] * inv1, 0.2)
+                block[base + o] = v
+                s2 += v * v
+    return 1.0 / math.sqrt(s2 + 1e-10)
 
 
 @njit(nogil=True, parallel=True)

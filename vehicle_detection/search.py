@@ -33,7 +33,7 @@ import numpy as np
 
 from ._jit import njit
 from .detections import Detections
-from .features import FeatureConfig, _block_maps, _gather_block, convert_color, extract_features, hog_input, region_hog
+from .features import FeatureConfig, _cell_squares, _clipped_block, convert_color, extract_features, hog_input, region_hog
 from .images import as_rgb_uint8, check_frame_shape
 
 if TYPE_CHECKING:
@@ -323,6 +323,15 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
     # vehicle cut by the edge still has windows that frame it.
     pad = round(overhang * side * s.scale * s.aspect)
     left, right = (pad if x0 == 0 else 0), (pad if x1 == w else 0)
+    ratio = s.scale * s.aspect
+    if (left or right) and ratio == int(ratio):
+        # A padded width of whole scaled pixels: OpenCV's INTER_AREA then takes its fast path
+        # for integer ratios (plain block means) instead of fractional weights.
+        extra = (x1 - x0 + left + right) % int(ratio)
+        if right >= extra:
+            right -= extra
+        else:
+            left -= extra
     if left or right:
         region = cv2.copyMakeBorder(region, 0, 0, left, right, cv2.BORDER_REFLECT_101)
         x0, x1 = x0 - left, x1 + right
@@ -453,66 +462,104 @@ def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassif
 # --- the fast path -----------------------------------------------------------------------------
 
 
-# Border classes of a block inside a window: (vertical, horizontal), 0 interior, 1 top/left,
-# 2 bottom/right. The five non-corner classes are precomputed as block maps (a block of one
-# class is shared by up to blocks_per_window - 2 windows); the four corners are normalised on
-# the fly (each is used by exactly one window).
-_MAP_CLASSES = np.array([(0, 0), (1, 0), (2, 0), (0, 1), (0, 2)], dtype=np.int64)
+@njit(nogil=True, inline="always")
+def _border_class(i, nbw):
+    """Where block ``i`` (0..nbw-1) of a window lies along one axis: 1 first, 2 last, 0 inside."""
+    return 1 if i == 0 else (2 if i == nbw - 1 else 0)
 
 
 @njit(nogil=True, fastmath=True)
-def _score_hog(variants, maps, weights, weights32, cpb, rows, cols, out):
-    """HOG part of every window's margin.
+def _score_hog(variants, cpb, weights, rows, cols, out):
+    """HOG part of every window's margin: ``out`` (len(rows), len(cols)), overwritten.
 
-    variants (C, 3, 3, n_cr, n_cc, nb); maps (C, 5, n_br, n_bc, bs) for ``_MAP_CLASSES``;
-    weights (C, nbw, nbw, bs); rows/cols: window top-left cells; out (len(rows), len(cols)).
+    variants (C, 3, 3, n_cr, n_cc, nb) from :func:`~vehicle_detection.features.region_hog`;
+    weights (C, nbw, nbw, bs) float32; rows, cols: the windows' top-left cells, increasing.
+
+    Block by block: each block position is normalised once for each border class some window
+    sees it in (inside, or on a window's top, bottom, left or right border, or a corner), and
+    at once dotted with the weights of every window it belongs to. No block map is stored.
     """
-    n_ch, nbw = weights.shape[0], weights.shape[1]
-    bs = weights.shape[3]
-    block = np.empty(bs, np.float64)
-    for wr in range(rows.shape[0]):
-        r0 = rows[wr]
-        for wc in range(cols.shape[0]):
-            c0 = cols[wc]
-            s = 0.0
-            for ch in range(n_ch):
-                for i in range(nbw):
-                    vc = 1 if i == 0 else (2 if i == nbw - 1 else 0)
-                    for j in range(nbw):
-                        hc = 1 if j == 0 else (2 if j == nbw - 1 else 0)
-                        if vc != 0 and hc != 0:
-                            _gather_block(variants[ch], r0 + i, c0 + j, cpb, vc, hc, block)
-                            for k in range(bs):
-                                s += block[k] * weights[ch, i, j, k]
-                        else:
-                            m = 0 if vc == 0 and hc == 0 else (vc if vc != 0 else 2 + hc)
-                            mv = maps[ch, m, r0 + i, c0 + j]
-                            wv = weights32[ch, i, j]
-                            acc = np.float32(0.0)
-                            for k in range(bs):
-                                acc += mv[k] * wv[k]
-                            s += acc
-            out[wr, wc] = s
+    n_ch, nbw, bs = weights.shape[0], weights.shape[1], weights.shape[3]
+    n_cr, n_cc = variants.shape[3], variants.shape[4]
+    n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
+    n_wr, n_wc = rows.shape[0], cols.shape[0]
+    out[:] = 0.0
+    ss = np.empty((3, 3, n_cr, n_cc))
+    block = np.empty(bs, np.float32)
+    for ch in range(n_ch):
+        var = variants[ch]
+        _cell_squares(var, ss)
+        wr_lo = 0
+        for r in range(n_br):
+            # windows wr_lo..wr_hi-1 hold block row r (as their block row r - rows[wr])
+            while wr_lo < n_wr and rows[wr_lo] + nbw <= r:
+                wr_lo += 1
+            wr_hi = wr_lo
+            while wr_hi < n_wr and rows[wr_hi] <= r:
+                wr_hi += 1
+            if wr_hi == wr_lo:
+                continue
+            wc_lo = 0
+            for c in range(n_bc):
+                while wc_lo < n_wc and cols[wc_lo] + nbw <= c:
+                    wc_lo += 1
+                wc_hi = wc_lo
+                while wc_hi < n_wc and cols[wc_hi] <= c:
+                    wc_hi += 1
+                if wc_hi == wc_lo:
+                    continue
+                for vclass in range(3):
+                    vneed = False
+                    for wr in range(wr_lo, wr_hi):
+                        vneed |= _border_class(r - rows[wr], nbw) == vclass
+                    if not vneed:
+                        continue
+                    for hclass in range(3):
+                        hneed = False
+                        for wc in range(wc_lo, wc_hi):
+                            hneed |= _border_class(c - cols[wc], nbw) == hclass
+                        if not hneed:
+                            continue
+                        scale = _clipped_block(var, ss, r, c, cpb, vclass, hclass, block)
+                        for wr in range(wr_lo, wr_hi):
+                            i = r - rows[wr]
+                            if _border_class(i, nbw) != vclass:
+                                continue
+                            for wc in range(wc_lo, wc_hi):
+                                j = c - cols[wc]
+                                if _border_class(j, nbw) != hclass:
+                                    continue
+                                w = weights[ch, i, j]
+                                t = np.float32(0.0)
+                                for k in range(bs):
+                                    t += block[k] * w[k]
+                                out[wr, wc] += t * scale
 
 
 @njit(nogil=True)
-def _colour_sums(conv, f, ppc, hist_lut, bin_sums, cell_scores):
+def _colour_sums(conv, f, ppc, hist_lut, bin_means, cell_scores):
     """One pass over the region for the colour features.
 
-    bin_sums (h // f, w // f, 3) float64: sum of each channel over each ``f x f`` block (the
-    spatial bins of any window aligned to the ``f`` grid); cell_scores (h // ppc, w // ppc):
-    sum over each cell's pixels of ``hist_lut[ch, value]``, the histogram weight of the
-    pixel's bin (a window's histogram score is the sum over its cells).
+    bin_means (h // f, w // f, 3) float32: mean of each channel over each ``f x f`` block (the
+    spatial bins of any window aligned to the ``f`` grid, as :func:`bin_spatial` computes
+    them); cell_scores (h // ppc, w // ppc): sum over each cell's pixels of
+    ``hist_lut[ch, value]``, the histogram weight of the pixel's bin (a window's histogram
+    score is the sum over its cells).
     """
-    nby, nbx = bin_sums.shape[0], bin_sums.shape[1]
+    nby, nbx = bin_means.shape[0], bin_means.shape[1]
+    inv = 1.0 / (f * f)
+    sums = np.zeros(nbx * 3, np.int64)
     for by in range(nby):
+        sums[:] = 0
+        for y in range(by * f, (by + 1) * f):
+            for x in range(nbx * f):
+                k = (x // f) * 3
+                sums[k] += conv[y, x, 0]
+                sums[k + 1] += conv[y, x, 1]
+                sums[k + 2] += conv[y, x, 2]
         for bx in range(nbx):
             for ch in range(3):
-                s = np.int64(0)  # a Python 0 plus uint8 stays uint8 without the JIT (NumPy 2)
-                for y in range(by * f, (by + 1) * f):
-                    for x in range(bx * f, (bx + 1) * f):
-                        s += conv[y, x, ch]
-                bin_sums[by, bx, ch] = s
+                bin_means[by, bx, ch] = np.float32(sums[bx * 3 + ch] * inv)
     for cy in range(cell_scores.shape[0]):
         for cx in range(cell_scores.shape[1]):
             s = 0.0
@@ -523,10 +570,12 @@ def _colour_sums(conv, f, ppc, hist_lut, bin_sums, cell_scores):
 
 
 @njit(nogil=True, fastmath=True)
-def _score_colour(bin_sums, spatial_w, f, cell_scores, cpw, ppc, rows, cols, with_spatial, with_hist, out):
+def _score_colour(bin_means, spatial_w, f, cell_scores, cpw, ppc, rows, cols, with_spatial, with_hist, out):
     """Add the spatial-bin and histogram parts of every window's margin to ``out``."""
     size = spatial_w.shape[0]
-    inv = 1.0 / (f * f)
+    run = size * 3  # one row of a window's spatial bins, contiguous in both arrays
+    means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
+    weights = spatial_w.reshape(size, run)
     for wr in range(rows.shape[0]):
         r0 = rows[wr]
         for wc in range(cols.shape[0]):
@@ -534,31 +583,17 @@ def _score_colour(bin_sums, spatial_w, f, cell_scores, cpw, ppc, rows, cols, wit
             s = 0.0
             if with_spatial:
                 by0 = r0 * ppc // f
-                bx0 = c0 * ppc // f
+                x0 = (c0 * ppc // f) * 3
                 for by in range(size):
-                    for bx in range(size):
-                        for ch in range(3):
-                            # float32 like bin_spatial, so both paths see the same features
-                            s += np.float32(bin_sums[by0 + by, bx0 + bx, ch] * inv) * spatial_w[by, bx, ch]
+                    m = means[by0 + by]
+                    w = weights[by]
+                    for k in range(run):
+                        s += m[x0 + k] * w[k]
             if with_hist:
                 for cy in range(r0, r0 + cpw):
                     for cx in range(c0, c0 + cpw):
                         s += cell_scores[cy, cx]
             out[wr, wc] += s
-
-
-def _needed_blocks(rows: np.ndarray, cols: np.ndarray, nbw: int, n_br: int, n_bc: int):
-    """Where each map class of ``_MAP_CLASSES`` is used by some window: (5, n_br), (5, n_bc)."""
-
-    def mark(n, starts, offsets):
-        m = np.zeros(n, bool)
-        m[(starts[:, None] + np.asarray(offsets)[None, :]).ravel()] = True
-        return m
-
-    inner = range(1, nbw - 1)
-    r_in, r_top, r_bot = mark(n_br, rows, inner), mark(n_br, rows, [0]), mark(n_br, rows, [nbw - 1])
-    c_in, c_left, c_right = mark(n_bc, cols, inner), mark(n_bc, cols, [0]), mark(n_bc, cols, [nbw - 1])
-    return np.stack([r_in, r_top, r_bot, r_in, r_in]), np.stack([c_in, c_in, c_in, c_left, c_right])
 
 
 _BUFFERS = threading.local()
@@ -600,8 +635,8 @@ class _KernelWeights:
         hist = w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else np.zeros((3, 1))
         self.hist_lut = np.ascontiguousarray(hist[:, (np.arange(256) * max(cfg.hist_bins, 1)) // 256])
         nbw = cfg.blocks_per_window
-        self.hog = np.ascontiguousarray(w[lay["hog"]].reshape(len(cfg.hog_channels), nbw, nbw, cfg.block_size))
-        self.hog32 = self.hog.astype(np.float32)
+        # float32 like the blocks: half the memory traffic of float64
+        self.hog = np.ascontiguousarray(w[lay["hog"]].reshape(len(cfg.hog_channels), nbw, nbw, cfg.block_size), np.float32)
 
 
 # Models are immutable, so their kernel weights are computed once per model and dropped with it.
@@ -615,36 +650,30 @@ def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
     return kw
 
 
-def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_only: bool = False) -> np.ndarray | None:
+def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True) -> np.ndarray:
     """Margins of every window of ``band``; ``reuse``: work arrays kept for the next frame (whole bands).
 
-    ``hog_only`` stops after the HOG cells and blocks and returns None (compiling those kernels).
+    ``hog_blocks=False`` leaves out the HOG blocks' part of the margins (for the warm-up, which
+    compiles that kernel in a helper process meanwhile).
     """
     buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
     cfg = model.config
     folded = _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
-    ppc, cpb, nbw = cfg.pixels_per_cell, cfg.cells_per_block, cfg.blocks_per_window
+    ppc, cpb = cfg.pixels_per_cell, cfg.cells_per_block
     hog_pixels = hog_input(conv, cfg)
     n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
-    n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
     variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
     region_hog(hog_pixels, cfg, out=variants)
-    need_rows, need_cols = _needed_blocks(band.rows, band.cols, nbw, n_br, n_bc)
-    # Normalised blocks in float32: they fit the cache and halve the memory traffic of scoring.
-    maps = buffer("maps", (len(variants), len(_MAP_CLASSES), n_br, n_bc, cfg.block_size), np.float32)
-    for ch, v in enumerate(variants):
-        _block_maps(v, cpb, _MAP_CLASSES, need_rows, need_cols, maps[ch])
-    if hog_only:
-        return None
-    out = np.empty((len(band.rows), len(band.cols)))
-    _score_hog(variants, maps, folded.hog, folded.hog32, cpb, band.rows, band.cols, out)
+    out = np.zeros((len(band.rows), len(band.cols)))
+    if hog_blocks:
+        _score_hog(variants, cpb, folded.hog, band.rows, band.cols, out)
     if cfg.spatial_size or cfg.hist_bins:
         f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
-        bin_sums = buffer("bin_sums", (conv.shape[0] // f, conv.shape[1] // f, 3))
+        bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
         cell_scores = buffer("cell_scores", (n_cr, n_cc))
-        _colour_sums(conv, f, ppc, folded.hist_lut, bin_sums, cell_scores)
-        _score_colour(bin_sums, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
+        _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
+        _score_colour(bin_means, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
                       bool(cfg.spatial_size), bool(cfg.hist_bins), out)
     out += folded.bias
     return out.ravel()
