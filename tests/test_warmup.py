@@ -36,3 +36,4 @@ def test_searching_after_the_warm_up_gives_the_same_windows(default_model, test_
     after = search.search(test_frames[0], default_model)
     np.testing.assert_array_equal(before.xyxy, after.xyxy)
     np.testing.assert_array_equal(before.score, after.score)
+

@@ -8,10 +8,11 @@ kernels (a real band's scoring without the blocks, on a blank frame, so with exa
 argument types of a real search); this process then loads the helper's kernel from the cache.
 The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
 (in the helper only: nothing is replaced here, so a search running in another thread meanwhile
-is unaffected). On a warm cache nothing happens here (the
-kernels load on first use), nor when the machine has no idle core (1-minute load average above
-the number of cores minus one): there the helper would only compete. The results never depend
-on this: a kernel the helper did not provide in time is compiled here as usual.
+is unaffected). On a warm cache nothing happens here (the kernels load on first use), nor
+with a single core. On a machine busy with other work the two processes share what is free,
+which is never slower than compiling everything here (the helper costs its imports, about
+0.3 s of CPU). The results never depend on this: a kernel the helper did not provide in time
+is compiled here as usual.
 """
 
 from __future__ import annotations
@@ -64,14 +65,9 @@ def _zero_last(*args) -> None:
     args[-1].fill(0)
 
 
-def _idle_core() -> bool:
-    """Whether a second core is free for the helper (on a busy machine it would only compete)."""
-    cores = os.cpu_count() or 1
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):  # Windows
-        return cores >= 2
-    return cores >= 2 and load <= cores - 1
+def _cores() -> int:
+    """Cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 @contextmanager
@@ -119,7 +115,7 @@ def compile_search_kernels(model) -> None:
         if _DONE.is_set():
             return
         _DONE.set()
-        if not _idle_core() or _cached(_HELPER_KERNELS + _MAIN_KERNELS):
+        if _cores() < 2 or _cached(_HELPER_KERNELS + _MAIN_KERNELS):
             return
         env = dict(os.environ)
         env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
