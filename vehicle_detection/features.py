@@ -752,7 +752,7 @@ def region_hog(image: np.ndarray, config: FeatureConfig, out: np.ndarray | None 
     image : ndarray of uint8, shape (H, W, 3) or (H, W)
         The region after :func:`hog_input`; a 2-D array is one channel.
     config : FeatureConfig
-    out : ndarray of float64, shape (n_channels, 3, 3, H // ppc, W // ppc, orientations), optional
+    out : ndarray of float64 or float32, shape (n_channels, 3, 3, H // ppc, W // ppc, orientations), optional
         Where to write the variants (reused across frames by the search).
 
     Returns

