@@ -570,7 +570,9 @@ def _clipped_block(variants, ss, r, c, cpb, vclass, hclass, block):
         vr = _edge_variant(vclass, a, cpb)
         for b in range(cpb):
             s1 += ss[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
-    inv1 = 1.0 / math.sqrt(s1 + 1e-10)
+    # float32 factors: float32 cells are scaled in float32 (float64 ones stay float64)
+    inv1 = np.float32(1.0 / math.sqrt(s1 + 1e-10))
+    clip = np.float32(0.2)
     s2 = 0.0
     for a in range(cpb):
         vr = _edge_variant(vclass, a, cpb)
@@ -578,7 +580,7 @@ def _clipped_block(variants, ss, r, c, cpb, vclass, hclass, block):
             src = variants[vr, _edge_variant(hclass, b, cpb), r + a, c + b]
             base = (a * cpb + b) * nb
             for o in range(nb):
-                v = min(src[o] * inv1, 0.2)
+                v = min(src[o] * inv1, clip)
                 block[base + o] = v
                 s2 += v * v
     return 1.0 / math.sqrt(s2 + 1e-10)
