@@ -468,6 +468,30 @@ def _border_class(i, nbw):
     return 1 if i == 0 else (2 if i == nbw - 1 else 0)
 
 
+@njit(nogil=True, inline="always")
+def _windows_over(starts, lo, k, nbw):
+    """Windows ``lo..hi-1`` (``starts`` increasing) whose blocks ``starts[w]..starts[w]+nbw-1`` hold block ``k``.
+
+    ``lo`` is where the previous (smaller) ``k`` began; returns the new ``(lo, hi)``.
+    """
+    n = starts.shape[0]
+    while lo < n and starts[lo] + nbw <= k:
+        lo += 1
+    hi = lo
+    while hi < n and starts[hi] <= k:
+        hi += 1
+    return lo, hi
+
+
+@njit(nogil=True, inline="always")
+def _seen_as(starts, lo, hi, k, nbw, border):
+    """Whether one of windows ``lo..hi-1`` has block ``k`` in ``border`` class (:func:`_border_class`)."""
+    for w in range(lo, hi):
+        if _border_class(k - starts[w], nbw) == border:
+            return True
+    return False
+
+
 @njit(nogil=True, fastmath=True)
 def _score_hog(variants, cpb, weights, rows, cols, out):
     """HOG part of every window's margin: ``out`` (len(rows), len(cols)), overwritten.
@@ -482,7 +506,6 @@ def _score_hog(variants, cpb, weights, rows, cols, out):
     n_ch, nbw, bs = weights.shape[0], weights.shape[1], weights.shape[3]
     n_cr, n_cc = variants.shape[3], variants.shape[4]
     n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
-    n_wr, n_wc = rows.shape[0], cols.shape[0]
     out[:] = 0.0
     ss = np.empty((3, 3, n_cr, n_cc))
     block = np.empty(bs, np.float32)
@@ -491,34 +514,19 @@ def _score_hog(variants, cpb, weights, rows, cols, out):
         _cell_squares(var, ss)
         wr_lo = 0
         for r in range(n_br):
-            # windows wr_lo..wr_hi-1 hold block row r (as their block row r - rows[wr])
-            while wr_lo < n_wr and rows[wr_lo] + nbw <= r:
-                wr_lo += 1
-            wr_hi = wr_lo
-            while wr_hi < n_wr and rows[wr_hi] <= r:
-                wr_hi += 1
+            wr_lo, wr_hi = _windows_over(rows, wr_lo, r, nbw)
             if wr_hi == wr_lo:
                 continue
             wc_lo = 0
             for c in range(n_bc):
-                while wc_lo < n_wc and cols[wc_lo] + nbw <= c:
-                    wc_lo += 1
-                wc_hi = wc_lo
-                while wc_hi < n_wc and cols[wc_hi] <= c:
-                    wc_hi += 1
+                wc_lo, wc_hi = _windows_over(cols, wc_lo, c, nbw)
                 if wc_hi == wc_lo:
                     continue
                 for vclass in range(3):
-                    vneed = False
-                    for wr in range(wr_lo, wr_hi):
-                        vneed |= _border_class(r - rows[wr], nbw) == vclass
-                    if not vneed:
+                    if not _seen_as(rows, wr_lo, wr_hi, r, nbw, vclass):
                         continue
                     for hclass in range(3):
-                        hneed = False
-                        for wc in range(wc_lo, wc_hi):
-                            hneed |= _border_class(c - cols[wc], nbw) == hclass
-                        if not hneed:
+                        if not _seen_as(cols, wc_lo, wc_hi, c, nbw, hclass):
                             continue
                         scale = _clipped_block(var, ss, r, c, cpb, vclass, hclass, block)
                         for wr in range(wr_lo, wr_hi):
