@@ -400,8 +400,9 @@ def _cell_votes(chan, lut, ppc, n_cr, n_cc, nb, cells):
 def _region_variants(image, channels, lut, ppc, nb, variants):
     """Cell histograms of chosen channels of a search region, as seen from any window.
 
-    image (H, W, C) uint8; variants (len(channels), 3, 3, H // ppc, W // ppc, nb) float64, all
-    overwritten. ``variants[k, 0, 0]`` are the cells of channel ``channels[k]``;
+    image (H, W, C) uint8; variants (len(channels), 3, 3, H // ppc, W // ppc, nb), float64 or
+    float32 (summed in float64 either way), all overwritten. ``variants[k, 0, 0]`` are the cells
+    of channel ``channels[k]``;
     ``variants[k, v, h]`` the cells as a cropped window sees them when its top (v=1) or bottom
     (v=2) border and its left (h=1) or right (h=2) border runs along the cell's edge: the crop
     has no gradient across its border, so a border pixel votes |gx| at 0 deg (top/bottom),
@@ -410,81 +411,78 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
     h, w = image.shape[0], image.shape[1]
     n_ch = channels.shape[0]
     n_cr, n_cc = variants.shape[3], variants.shape[4]
-    cells = np.empty((n_ch, n_cc, nb))
-    # Change of a cell when its top/bottom/left/right edge is a window border (0-3), and the
-    # extra change of its top-left/top-right/bottom-left/bottom-right pixel at a corner (4-7).
-    d = np.empty((n_ch, 8, n_cc, nb))
-    for cy in range(n_cr):
-        cells[:] = 0.0
-        d[:] = 0.0
-        for ry in range(ppc):
-            y = cy * ppc + ry
-            top = ry == 0
-            bottom = ry == ppc - 1
-            inner_y = 0 < y < h - 1
+    # One cell at a time (small arrays that stay in the fastest cache): its histogram, and its
+    # change when its top/bottom/left/right edge is a window border (d 0-3) plus the extra
+    # change of its top-left/top-right/bottom-left/bottom-right pixel at a corner (d 4-7).
+    cell = np.empty(nb)
+    d = np.empty((8, nb))
+    for k in range(n_ch):
+        ch = channels[k]
+        v = variants[k]
+        for cy in range(n_cr):
             for cx in range(n_cc):
-                for rx in range(ppc):
-                    x = cx * ppc + rx
-                    inner_x = 0 < x < w - 1
-                    left = rx == 0
-                    right = rx == ppc - 1
-                    edge = top or bottom or left or right
-                    for k in range(n_ch):
-                        ch = channels[k]
+                cell[:] = 0.0
+                d[:] = 0.0
+                for ry in range(ppc):
+                    y = cy * ppc + ry
+                    top = ry == 0
+                    bottom = ry == ppc - 1
+                    inner_y = 0 < y < h - 1
+                    for rx in range(ppc):
+                        x = cx * ppc + rx
                         gx = 0
                         gy = 0
-                        if inner_x:
+                        if 0 < x < w - 1:
                             gx = np.int32(image[y, x + 1, ch]) - np.int32(image[y, x - 1, ch])
                         if inner_y:
                             gy = np.int32(image[y + 1, x, ch]) - np.int32(image[y - 1, x, ch])
                         m = math.sqrt(gx * gx + gy * gy)
                         b = lut[gy + 255, gx + 255]
                         if b < nb:
-                            cells[k, cx, b] += m
-                        if not edge:
+                            cell[b] += m
+                        left = rx == 0
+                        right = rx == ppc - 1
+                        if not (top or bottom or left or right):
                             continue
-                        bh = lut[255, gx + 255]
-                        mh = abs(gx)
-                        bv = lut[gy + 255, 255]
-                        mv = abs(gy)
                         if top or bottom:
                             e = 0 if top else 1
+                            bh = lut[255, gx + 255]
                             if bh < nb:
-                                d[k, e, cx, bh] += mh
+                                d[e, bh] += abs(gx)
                             if b < nb:
-                                d[k, e, cx, b] -= m
+                                d[e, b] -= m
                         if left or right:
                             e = 2 if left else 3
+                            bv = lut[gy + 255, 255]
                             if bv < nb:
-                                d[k, e, cx, bv] += mv
+                                d[e, bv] += abs(gy)
                             if b < nb:
-                                d[k, e, cx, b] -= m
+                                d[e, b] -= m
                         if (top or bottom) and (left or right):
                             # Both gradients zeroed: the vote is 0. The two edge changes sum to
                             # (mh - m) + (mv - m); this brings the total to -m.
                             e = (4 if left else 5) if top else (6 if left else 7)
+                            bh = lut[255, gx + 255]
+                            bv = lut[gy + 255, 255]
                             if b < nb:
-                                d[k, e, cx, b] += m
+                                d[e, b] += m
                             if bh < nb:
-                                d[k, e, cx, bh] -= mh
+                                d[e, bh] -= abs(gx)
                             if bv < nb:
-                                d[k, e, cx, bv] -= mv
-        for k in range(n_ch):
-            v = variants[k]
-            for cx in range(n_cc):
+                                d[e, bv] -= abs(gy)
                 for o in range(nb):
-                    c = cells[k, cx, o]
-                    t = c + d[k, 0, cx, o]
-                    bo = c + d[k, 1, cx, o]
+                    c = cell[o]
+                    t = c + d[0, o]
+                    bo = c + d[1, o]
                     v[0, 0, cy, cx, o] = c
                     v[1, 0, cy, cx, o] = t
                     v[2, 0, cy, cx, o] = bo
-                    v[0, 1, cy, cx, o] = c + d[k, 2, cx, o]
-                    v[0, 2, cy, cx, o] = c + d[k, 3, cx, o]
-                    v[1, 1, cy, cx, o] = t + d[k, 2, cx, o] + d[k, 4, cx, o]
-                    v[1, 2, cy, cx, o] = t + d[k, 3, cx, o] + d[k, 5, cx, o]
-                    v[2, 1, cy, cx, o] = bo + d[k, 2, cx, o] + d[k, 6, cx, o]
-                    v[2, 2, cy, cx, o] = bo + d[k, 3, cx, o] + d[k, 7, cx, o]
+                    v[0, 1, cy, cx, o] = c + d[2, o]
+                    v[0, 2, cy, cx, o] = c + d[3, o]
+                    v[1, 1, cy, cx, o] = t + d[2, o] + d[4, o]
+                    v[1, 2, cy, cx, o] = t + d[3, o] + d[5, o]
+                    v[2, 1, cy, cx, o] = bo + d[2, o] + d[6, o]
+                    v[2, 2, cy, cx, o] = bo + d[3, o] + d[7, o]
 
 
 @njit(nogil=True, fastmath=True)
