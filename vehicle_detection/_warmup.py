@@ -28,7 +28,7 @@ import numpy as np
 
 from . import _jit
 
-__all__ = ["compile_search_kernels", "load_search_kernels"]
+__all__ = ["compile_search_kernels"]
 
 _DONE = threading.Event()
 _LOCK = threading.Lock()
@@ -104,19 +104,6 @@ def _compile_main(model) -> None:
     band = _blank_band(model)
     if band is not None:
         _score_band(band, model, reuse=False, hog_blocks=False)
-
-
-def load_search_kernels(model) -> None:
-    """Load (or compile) every search kernel by scoring a blank band.
-
-    A video run calls it in a thread while its first frames are decoded and the horizon is
-    estimated, so that the first search does not wait for the kernels to load from the cache.
-    """
-    from .search import _score_band
-
-    band = _blank_band(model)
-    if band is not None:
-        _score_band(band, model, reuse=False)
 
 
 def compile_search_kernels(model) -> None:

@@ -246,9 +246,11 @@ class Detector:
         tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
         (:func:`~vehicle_detection.batch.track_chunk`) keeps the steps to join them later.
         """
-        from ._warmup import compile_search_kernels, load_search_kernels
+        from ._warmup import compile_search_kernels
 
         compile_search_kernels(self.model)  # on a fresh install, on both cores
+        det, frames = self.for_footage(iter(frames), tracker)
+        submitted = tracker.state.frame_index
 
         def advance(frame, future):
             index = tracker.state.frame_index
@@ -257,9 +259,6 @@ class Detector:
 
         pending: deque = deque()
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
-            pool.submit(load_search_kernels, self.model)  # meanwhile: the first frames, the horizon
-            det, frames = self.for_footage(iter(frames), tracker)
-            submitted = tracker.state.frame_index
             try:
                 for frame in frames:
                     around = det._scheduled_around(tracker, submitted)

@@ -16,9 +16,7 @@ plan stays as written. Single images are searched where the plan says, unless a 
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -117,10 +115,7 @@ def estimate_horizon(
     float or None
         The median row of the largest agreeing group, as a fraction of the frame height.
     """
-    frames = list(frames)
-    # OpenCV's edge and line finding release the GIL: the frames are read on all cores.
-    with ThreadPoolExecutor(max_workers=max(1, min(len(frames), os.cpu_count() or 1))) as pool:
-        rows = np.array([r for r in pool.map(vanishing_row, frames) if r is not None])
+    rows = np.array([r for r in (vanishing_row(f) for f in frames) if r is not None])
     if len(rows) < max(1, min_frames):
         return None
     agree = np.abs(rows[:, None] - rows[None, :]) <= tolerance
