@@ -12,6 +12,11 @@ package and shadows a later editable install. The cache goes instead to the firs
 
 When none is writable the kernels are compiled on every run, without a cache (slower to start,
 the same results).
+
+numba checks a cached kernel against its own source file only, not against the files of the
+kernels it calls (``search._score_hog`` calls ``features._clipped_block``, for one). An install
+or upgrade writes every file anew, so nothing stale is loaded; a developer who edits a kernel in
+one file that another file's kernel calls must clear the cache folder (:data:`CACHE_DIR`).
 """
 
 from __future__ import annotations
