@@ -330,7 +330,7 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
         extra = (x1 - x0 + left + right) % int(ratio)
         if right >= extra:
             right -= extra
-        else:
+        elif left >= extra:
             left -= extra
     if left or right:
         region = cv2.copyMakeBorder(region, 0, 0, left, right, cv2.BORDER_REFLECT_101)
