@@ -7,9 +7,10 @@ Two paths give the same answer:
   same over a :class:`SearchPlan`, one window at a time;
 * the **fast path**, used everywhere else (:func:`search`): per scale, the search region is
   resized and colour-converted once, the HOG cells of the whole region are computed once, the
-  scaler is folded into the SVM weights, and every window is scored in one compiled pass (HOG
-  blocks dotted with the weight kernel; spatial bins from an integral image; colour histograms
-  as a per-pixel weight map summed by an integral image). No Python loop over windows.
+  scaler is folded into the SVM weights, and every window is scored in compiled passes: each
+  HOG block is normalised once per border class and dotted with the weights of every window
+  that holds it; spatial bins are block means shared by all windows; colour histograms become a
+  per-pixel weight map summed over cells. No Python loop over windows.
 
 The fast path reproduces the features a cropped window would give, including scikit-image's zero
 gradient on the window border (see :mod:`vehicle_detection.features`), so both paths agree on
