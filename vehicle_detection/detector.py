@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 import itertools
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -84,7 +83,7 @@ class Detector:
         if horizon is None:
             return self
         out = copy.copy(self)  # a subclass stays one
-        out.config = self.config.replace(plan=dataclasses.replace(self.config.plan, horizon=float(horizon)))
+        out.config = self.config.at_horizon(float(horizon))
         return out
 
     def _moved_to(self, estimate: float | None) -> float | None:
@@ -250,7 +249,6 @@ class Detector:
 
         compile_search_kernels(self.model)  # on a fresh install, on both cores
         det, frames = self.for_footage(iter(frames), tracker)
-        submitted = tracker.state.frame_index
 
         def advance(frame, future):
             index = tracker.state.frame_index
@@ -261,8 +259,8 @@ class Detector:
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 for frame in frames:
-                    around = det._scheduled_around(tracker, submitted)
-                    submitted += 1
+                    # this frame's index: the frames advanced plus those still searched
+                    around = det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
                     pending.append((frame, pool.submit(det.windows, *args)))
                     if len(pending) > workers:

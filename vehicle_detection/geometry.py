@@ -7,6 +7,9 @@ boxes (the tracker's association, the evaluation's matching, the heat map) uses 
 
 from __future__ import annotations
 
+import functools
+import itertools
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -195,6 +198,14 @@ def match_boxes(iou: ArrayLike, threshold: float) -> tuple[np.ndarray, np.ndarra
 _SMALL_ASSIGNMENTS = 5040  # 7 x 7
 
 
+@functools.lru_cache(maxsize=64)
+def _permutations(m: int, n: int) -> np.ndarray:
+    """Every ordered choice of ``n`` of ``m`` columns, ``(m! / (m - n)!, n)`` intp, read-only (made once per shape)."""
+    perms = np.array(list(itertools.permutations(range(m), n)), np.intp).reshape(-1, n)
+    perms.setflags(write=False)
+    return perms
+
+
 def _match_small(weights: np.ndarray, valid: np.ndarray):
     """The maximum-weight matching of a small matrix by trying every assignment, or None.
 
@@ -204,7 +215,6 @@ def _match_small(weights: np.ndarray, valid: np.ndarray):
     matrices are a few tracks by a few blobs, so scipy is rarely imported (a quarter of a
     second at start-up).
     """
-    import itertools
     import math
 
     transpose = weights.shape[0] > weights.shape[1]
@@ -212,7 +222,7 @@ def _match_small(weights: np.ndarray, valid: np.ndarray):
     n, m = w.shape
     if math.perm(m, n) > _SMALL_ASSIGNMENTS:
         return None
-    perms = np.array(list(itertools.permutations(range(m), n)), np.intp).reshape(-1, n)
+    perms = _permutations(m, n)
     rows = np.arange(n)
     totals = w[rows, perms].sum(axis=1)
     best = totals.max()

@@ -469,72 +469,68 @@ def _border_class(i, nbw):
     return 1 if i == 0 else (2 if i == nbw - 1 else 0)
 
 
-@njit(nogil=True, inline="always")
-def _windows_over(starts, lo, k, nbw):
-    """Windows ``lo..hi-1`` (``starts`` increasing) whose blocks ``starts[w]..starts[w]+nbw-1`` hold block ``k``.
+@njit(nogil=True)
+def _windows_per_block(starts, nbw, lo, hi, seen):
+    """Which windows hold each block along one axis, for :func:`_score_hog`.
 
-    ``lo`` is where the previous (smaller) ``k`` began; returns the new ``(lo, hi)``.
+    starts: the windows' first blocks, increasing. For each block ``k`` (``lo``, ``hi``, ``seen``
+    all of length n_blocks): windows ``lo[k]..hi[k]-1`` hold it, and ``seen[k, b]`` says whether
+    one of them has it in border class ``b`` (:func:`_border_class`).
     """
     n = starts.shape[0]
-    while lo < n and starts[lo] + nbw <= k:
-        lo += 1
-    hi = lo
-    while hi < n and starts[hi] <= k:
-        hi += 1
-    return lo, hi
-
-
-@njit(nogil=True, inline="always")
-def _seen_as(starts, lo, hi, k, nbw, border):
-    """Whether one of windows ``lo..hi-1`` has block ``k`` in ``border`` class (:func:`_border_class`)."""
-    for w in range(lo, hi):
-        if _border_class(k - starts[w], nbw) == border:
-            return True
-    return False
+    first = 0
+    for k in range(lo.shape[0]):
+        while first < n and starts[first] + nbw <= k:
+            first += 1
+        last = first
+        seen[k, :] = False
+        while last < n and starts[last] <= k:
+            seen[k, _border_class(k - starts[last], nbw)] = True
+            last += 1
+        lo[k], hi[k] = first, last
 
 
 @njit(nogil=True, fastmath=True)
-def _score_hog(variants, cpb, weights, rows, cols, out):
-    """HOG part of every window's margin: ``out`` (len(rows), len(cols)), overwritten.
+def _score_hog(variants, cpb, weights, rows, cols, ss, out):
+    """Add the HOG part of every window's margin to ``out`` (len(rows), len(cols)).
 
     variants (C, 3, 3, n_cr, n_cc, nb) from :func:`~vehicle_detection.features.region_hog`;
-    weights (C, nbw, nbw, bs) float32; rows, cols: the windows' top-left cells, increasing.
+    weights (C, nbw, nbw, bs) float32; rows, cols: the windows' top-left cells, increasing;
+    ss (3, 3, n_cr, n_cc) float64: work space.
 
     Block by block: each block position is normalised once for each border class some window
     sees it in (inside, or on a window's top, bottom, left or right border, or a corner), and
     at once dotted with the weights of every window it belongs to. No block map is stored.
     """
     n_ch, nbw, bs = weights.shape[0], weights.shape[1], weights.shape[3]
-    n_cr, n_cc = variants.shape[3], variants.shape[4]
-    n_br, n_bc = n_cr - cpb + 1, n_cc - cpb + 1
-    out[:] = 0.0
-    ss = np.empty((3, 3, n_cr, n_cc))
+    n_br, n_bc = variants.shape[3] - cpb + 1, variants.shape[4] - cpb + 1
+    row_lo, row_hi = np.empty(n_br, np.int64), np.empty(n_br, np.int64)
+    col_lo, col_hi = np.empty(n_bc, np.int64), np.empty(n_bc, np.int64)
+    row_seen, col_seen = np.empty((n_br, 3), np.bool_), np.empty((n_bc, 3), np.bool_)
+    _windows_per_block(rows, nbw, row_lo, row_hi, row_seen)
+    _windows_per_block(cols, nbw, col_lo, col_hi, col_seen)
     block = np.empty(bs, np.float32)
     for ch in range(n_ch):
         var = variants[ch]
         _cell_squares(var, ss)
-        wr_lo = 0
         for r in range(n_br):
-            wr_lo, wr_hi = _windows_over(rows, wr_lo, r, nbw)
-            if wr_hi == wr_lo:
+            if row_hi[r] == row_lo[r]:
                 continue
-            wc_lo = 0
             for c in range(n_bc):
-                wc_lo, wc_hi = _windows_over(cols, wc_lo, c, nbw)
-                if wc_hi == wc_lo:
+                if col_hi[c] == col_lo[c]:
                     continue
                 for vclass in range(3):
-                    if not _seen_as(rows, wr_lo, wr_hi, r, nbw, vclass):
+                    if not row_seen[r, vclass]:
                         continue
                     for hclass in range(3):
-                        if not _seen_as(cols, wc_lo, wc_hi, c, nbw, hclass):
+                        if not col_seen[c, hclass]:
                             continue
                         scale = _clipped_block(var, ss, r, c, cpb, vclass, hclass, block)
-                        for wr in range(wr_lo, wr_hi):
+                        for wr in range(row_lo[r], row_hi[r]):
                             i = r - rows[wr]
                             if _border_class(i, nbw) != vclass:
                                 continue
-                            for wc in range(wc_lo, wc_hi):
+                            for wc in range(col_lo[c], col_hi[c]):
                                 j = c - cols[wc]
                                 if _border_class(j, nbw) != hclass:
                                     continue
@@ -557,7 +553,7 @@ def _colour_sums(conv, f, ppc, hist_lut, bin_means, cell_scores):
     """
     nby, nbx = bin_means.shape[0], bin_means.shape[1]
     inv = 1.0 / (f * f)
-    sums = np.zeros(nbx * 3, np.int64)
+    sums = np.empty(nbx * 3, np.int64)
     for by in range(nby):
         sums[:] = 0
         for y in range(by * f, (by + 1) * f):
@@ -678,7 +674,8 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
     region_hog(hog_pixels, cfg, out=variants)
     out = np.zeros((len(band.rows), len(band.cols)))
     if hog_blocks:
-        _score_hog(variants, cpb, folded.hog, band.rows, band.cols, out)
+        ss = buffer("cell_squares", (3, 3, n_cr, n_cc))
+        _score_hog(variants, cpb, folded.hog, band.rows, band.cols, ss, out)
     if cfg.spatial_size or cfg.hist_bins:
         f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
         bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
@@ -705,7 +702,7 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
     horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
     mask = edge[None, :] | horizon[:, None]
     if len(around):
-        a = np.asarray(around, np.float64)
+        a = around
         w, h = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
         m = plan.track_margin
         gx1, gy1, gx2, gy2 = a[:, 0] - m * w, a[:, 1] - m * h, a[:, 2] + m * w, a[:, 3] + m * h
@@ -716,7 +713,10 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
 
 
 def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -> np.ndarray:
-    """Margins of the band's windows where ``mask`` holds (the others: -inf), flat like :func:`_score_band`.
+    """Margins of the band's windows where ``mask`` holds, flat like :func:`_score_band`.
+
+    The others are -inf, or their margins where a crop or the whole band scored them anyway:
+    callers keep the windows of ``mask`` only.
 
     Windows see only their own pixels (the HOG gradient is zero on a window's border), so each
     run of wanted columns is scored on a crop of the band holding just its windows, with the
@@ -739,7 +739,6 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -
         sub = _Band(np.ascontiguousarray(image), 0, 0, band.sx, band.sy,
                     band.rows[r0:r1] - band.rows[r0], band.cols[a:b] - band.cols[a])
         out[r0:r1, a:b] = _score_band(sub, model, reuse=False).reshape(r1 - r0, b - a)  # shapes vary: not kept
-    out[~mask] = -np.inf
     return out.ravel()
 
 
