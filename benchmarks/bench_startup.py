@@ -66,11 +66,6 @@ def run_detect(video: Path, tmp: Path, cache: Path, extra: list[str]) -> tuple[f
     return seconds, rss
 
 
-def loop_clip(src: Path, dest: Path, loops: int) -> Path:
-    """Stream-copy the video of ``src`` ``loops`` times over into ``dest`` (PyAV, no re-encoding)."""
-    return copy_packets(src, dest, loops=loops)
-
-
 def _stats(xs: list[float], fmt: str = "{:.2f}") -> str:
     return f"min {fmt.format(min(xs))}  median {fmt.format(statistics.median(xs))}  max {fmt.format(max(xs))}"
 
@@ -106,8 +101,8 @@ def main():
         cache = tmp / "cache-long"
         cache.mkdir()
         run_detect(SHORT, tmp, cache, extra)  # fill the cache
-        one = loop_clip(CLIP_A, tmp / "clip_A_x1.mp4", 1)
-        long = loop_clip(CLIP_A, tmp / f"clip_A_x{args.long_loops}.mp4", args.long_loops)
+        one = copy_packets(CLIP_A, tmp / "clip_A_x1.mp4", loops=1)
+        long = copy_packets(CLIP_A, tmp / f"clip_A_x{args.long_loops}.mp4", loops=args.long_loops)
         n_one, n_long = decoded_count(one), decoded_count(long)
         e2e, plain, ratio, rss_one, rss_long = [], [], [], [], []
         for i in range(args.runs):

@@ -106,21 +106,11 @@ def test_cli_full_search_every(tmp_path):
     """``detect --full-search-every N`` runs the schedule; 0 is refused as a bad command line."""
     from pathlib import Path
 
+    import media
     from vehicle_detection.cli import main
     from vehicle_detection.tables import read_boxes_csv
 
-    repo = Path(__file__).resolve().parents[1]
-    frames = tmp_path / "clip.mp4"
-    import av
-
-    with av.open(str(repo / "test_video.mp4")) as inp, av.open(str(frames), "w") as out:  # first 12 frames
-        ist = inp.streams.video[0]
-        ost = out.add_stream_from_template(ist)
-        for i, p in enumerate(p for p in inp.demux(ist) if p.size):
-            if i >= 12:
-                break
-            p.stream = ost
-            out.mux(p)
+    frames = media.copy_packets(Path(__file__).resolve().parents[1] / "test_video.mp4", tmp_path / "clip.mp4", max_frames=12)
     assert main(["detect", str(frames), "--out", str(tmp_path / "o.mp4"), "--boxes", str(tmp_path / "o.csv"),
                  "--full-search-every", "4", "--no-progress"]) == 0
     assert len(read_boxes_csv(tmp_path / "o.csv")) > 0

@@ -689,12 +689,12 @@ def _cmd_detect_one(args) -> int:
                 det = detector.detect_image(image).replace(frame=i)
                 shown = image
                 if camera is not None and camera.birds_eye is not None:
-                    from .lanes import DistanceTracker, LaneTracker, draw_lane
+                    from .lanes import DistanceTracker, LaneTracker, draw_lane, lane_row
 
                     det = DistanceTracker(camera.birds_eye, 25.0).update(det)
                     if lanes:
                         lane = LaneTracker(camera.birds_eye).step(image)
-                        lane_rows.append((i, *((lane.radius_m, lane.offset_m) if lane else (None, None))))
+                        lane_rows.append(lane_row(i, lane))
                         shown = draw_lane(image, lane, camera.birds_eye)
                 write_image(o, draw_detections(shown, det), overwrite=args.overwrite, inputs=inputs)
                 found.append(det)

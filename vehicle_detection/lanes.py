@@ -52,6 +52,7 @@ __all__ = [
     "LaneTracker",
     "DistanceTracker",
     "draw_lane",
+    "lane_row",
     "LANE_WIDTH_M",
     "DASH_LENGTH_M",
 ]
@@ -413,6 +414,12 @@ class LaneTracker:
     def step(self, frame: np.ndarray) -> Lane | None:
         """Warp and threshold an (undistorted) RGB frame, then :meth:`update`."""
         return self.update(lane_binary(self.birds_eye.warp(frame)))
+
+
+def lane_row(frame: int, lane: Lane | None) -> tuple[int, float | None, float | None]:
+    """The row of frame ``frame`` in the lanes CSV (:func:`~vehicle_detection.tables.write_lanes_csv`):
+    ``(frame, radius_m, offset_m)``, with None for both when no lane was found."""
+    return (frame, lane.radius_m, lane.offset_m) if lane is not None else (frame, None, None)
 
 
 def draw_lane(image: np.ndarray, lane: Lane | None, birds_eye: BirdsEye, *, color=(0, 200, 255), alpha: float = 0.3) -> np.ndarray:

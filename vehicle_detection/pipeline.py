@@ -137,7 +137,7 @@ def process_video(
     from .detections import Detections
     from .detector import Detector
     from .drawing import draw_detections
-    from .tables import write_boxes_csv, write_lanes_csv
+    from .tables import DISTANCE_COLUMNS, write_boxes_csv, write_lanes_csv
 
     path = Path(path)
     detector = detector or Detector()
@@ -175,7 +175,7 @@ def process_video(
         raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
     lane_tracker = distances = None
     if lanes:
-        from .lanes import LaneTracker, draw_lane
+        from .lanes import LaneTracker, draw_lane, lane_row
 
         lane_tracker = LaneTracker(birds_eye)
     if birds_eye is not None:
@@ -219,7 +219,7 @@ def process_video(
                 lane = None
                 if lane_tracker is not None:
                     lane = lanes_ahead.popleft().result()
-                    lane_rows.append((index, *((lane.radius_m, lane.offset_m) if lane else (None, None))))
+                    lane_rows.append(lane_row(index, lane))
                 if writer is not None:
                     shown = draw_lane(frame, lane, birds_eye) if lane_tracker is not None else frame
                     writer.write(draw_detections(shown, found))
@@ -227,7 +227,7 @@ def process_video(
                     bar.update()
             table = Detections.concatenate(detections)
             if distances is not None and not len(table):  # the columns, even without boxes
-                table = table.replace(data={"distance_m": np.zeros(0), "relative_speed_mps": np.zeros(0)})
+                table = table.replace(data={**table.data, **{c: np.zeros(0) for c in DISTANCE_COLUMNS}})
             if lanes_csv is not None:
                 write_lanes_csv(lanes_csv, lane_rows, overwrite=overwrite, inputs=[path])
             if boxes_csv is not None:

@@ -217,7 +217,7 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
         records = list(enumerate((line.split(",") for line in lines[1:]), start=2))
     rows, extra, names = [], [], []
     for lineno, fields in records:
-        if not fields or fields == [""] or (len(fields) == 1 and not fields[0].strip()):
+        if not fields or (len(fields) == 1 and not fields[0].strip()):
             raise InputError(f"{path}: line {lineno}: blank line inside the data")
         rows.append(_parse_line(fields, lineno, path, header))
         if distances:
