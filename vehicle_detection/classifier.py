@@ -34,6 +34,7 @@ from .config import DetectorConfig
 from .data import Dataset
 from .errors import ModelError
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
+from .refine import BoxRegressor
 from .search import SearchPlan
 
 __all__ = [
@@ -58,6 +59,8 @@ MODEL_FORMAT_VERSION = 2
 _MAX_HEADER_BYTES = 1 << 20
 _MAX_ARRAY_BYTES = 64 << 20
 _ARRAYS = ("scaler_mean", "scaler_scale", "coef", "intercept")
+#: Arrays of the optional box refinement (:mod:`~vehicle_detection.refine`).
+_BOX_ARRAYS = ("box_coef", "box_intercept")
 
 
 def _version_tuple(v: str) -> tuple[int, ...]:
@@ -72,7 +75,7 @@ def _digest(arrays: dict[str, np.ndarray], header: dict) -> str:
     """SHA-256 over the arrays and the header (minus the digest itself), canonically encoded."""
     h = hashlib.sha256()
     h.update(json.dumps({k: v for k, v in header.items() if k != "sha256"}, sort_keys=True).encode("utf-8"))
-    for name in _ARRAYS:
+    for name in (*_ARRAYS, *(b for b in _BOX_ARRAYS if b in arrays)):
         a = np.ascontiguousarray(arrays[name], dtype="<f8")
         h.update(name.encode())
         h.update(str(a.shape).encode())
@@ -100,6 +103,9 @@ class VehicleClassifier:
         Version of the library that trained the model.
     detector_config : DetectorConfig, optional
         Search plan, heat, blob and tracker settings tuned to this model's margins.
+    box_regressor : BoxRegressor, optional
+        Predicts a vehicle's edges from a hot window's features (:mod:`~vehicle_detection.refine`);
+        None: windows are not refined.
 
     Attributes
     ----------
@@ -128,6 +134,7 @@ class VehicleClassifier:
     metrics: Mapping[str, Any] = field(default_factory=dict)
     library_version: str = __version__
     detector_config: DetectorConfig = field(default_factory=DetectorConfig)
+    box_regressor: BoxRegressor | None = None
     weights: np.ndarray = field(init=False, repr=False)
     bias: float = field(init=False, repr=False)
 
@@ -137,6 +144,9 @@ class VehicleClassifier:
         if not isinstance(self.detector_config, DetectorConfig):
             raise ValueError(f"detector_config must be a DetectorConfig; got {type(self.detector_config).__name__}")
         n = self.config.n_features
+        if self.box_regressor is not None:
+            if not isinstance(self.box_regressor, BoxRegressor) or self.box_regressor.n_features != n:
+                raise ValueError(f"box_regressor must be a BoxRegressor over the model's {n} features")
         set_ = object.__setattr__
         for name in ("scaler_mean", "scaler_scale", "coef"):
             arr = np.array(getattr(self, name), dtype=np.float64, copy=True)
@@ -210,12 +220,15 @@ class VehicleClassifier:
 
     # --- persistence ---------------------------------------------------------------------------
     def _arrays(self) -> dict[str, np.ndarray]:
-        return {
+        arrays = {
             "scaler_mean": self.scaler_mean,
             "scaler_scale": self.scaler_scale,
             "coef": self.coef,
             "intercept": np.array([self.intercept]),
         }
+        if self.box_regressor is not None:
+            arrays.update(box_coef=self.box_regressor.coef, box_intercept=self.box_regressor.intercept)
+        return arrays
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False, inputs=()) -> Path:
         """Write the model as an ``.npz`` of float arrays plus a JSON header, atomically.
@@ -300,6 +313,9 @@ class VehicleClassifier:
             if not np.all(np.isfinite(a)):
                 raise ModelError(f"{path}: array {name} holds non-finite values")
             arrays[name] = a
+        regressor = _box_regressor(path, data, n)
+        if regressor is not None:
+            arrays.update(box_coef=regressor.coef, box_intercept=regressor.intercept)
         if np.any(arrays["scaler_scale"] <= 0):
             raise ModelError(f"{path}: scaler_scale must be positive")
         if meta.get("sha256") != _digest(arrays, meta):
@@ -316,7 +332,21 @@ class VehicleClassifier:
             metrics=metrics,
             library_version=lib,
             detector_config=detector_config,
+            box_regressor=regressor,
         )
+
+
+def _box_regressor(path: Path, data: dict[str, np.ndarray], n: int) -> BoxRegressor | None:
+    """The model file's box refinement, if it has one (files before it have none)."""
+    if "box_coef" not in data:
+        return None
+    coef, intercept = data["box_coef"], data["box_intercept"]
+    if coef.dtype != np.float64 or coef.shape != (4, n) or intercept.dtype != np.float64 or intercept.shape != (4,):
+        raise ModelError(f"{path}: box refinement arrays are {coef.dtype} {coef.shape} and {intercept.dtype} {intercept.shape}, expected float64 (4, {n}) and (4,)")
+    try:
+        return BoxRegressor(coef, intercept)
+    except ValueError as exc:
+        raise ModelError(f"{path}: {exc}") from None
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
@@ -325,6 +355,8 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
     try:
         with zipfile.ZipFile(path) as zf:
             infos = {i.filename.removesuffix(".npy"): i for i in zf.infolist()}
+            if set(_BOX_ARRAYS) <= set(infos):
+                expected |= set(_BOX_ARRAYS)
             if set(infos) != expected:
                 raise ModelError(f"{path}: not a {MODEL_FORMAT} file: arrays {sorted(infos)}, expected {sorted(expected)}")
             for name, info in infos.items():

@@ -139,16 +139,21 @@ class Detector:
         return np.stack([t.box for t in tracks]) if tracks else np.zeros((0, 4))
 
     def _tracker_input(self, windows: Detections) -> Detections:
-        """Windows with their margin above the plan's threshold as score (what the tracker takes)."""
-        return windows.replace(score=windows.score - self.config.plan.threshold)
+        """What the tracker takes: each window as the box it stands for (refined where the model
+        refines, :mod:`~vehicle_detection.refine`), its margin above the plan's threshold as score."""
+        score = windows.score - self.config.plan.threshold
+        if "box" in windows.data:
+            return Detections(windows.data["box"], score=score, frame=windows.frame)
+        return windows.replace(score=score)
 
     def heat(self, frame_shape: tuple[int, ...], windows: Detections) -> np.ndarray:
         """Heat of one frame's windows as the tracker adds it, ``float32 (H // cell, W // cell)``."""
         cell = self.config.tracker.cell
         h, w = frame_shape[:2]
         heat = np.zeros((h // cell, w // cell), np.float32)
-        weights = window_heat(self._tracker_input(windows).score, self.config.tracker.score_gain)
-        return add_heat(heat, inset_boxes(windows.xyxy, self.config.tracker.window_inset), weights, cell=cell)
+        boxes = self._tracker_input(windows)
+        weights = window_heat(boxes.score, self.config.tracker.score_gain)
+        return add_heat(heat, inset_boxes(boxes.xyxy, self.config.tracker.window_inset), weights, cell=cell)
 
     def detect_image(self, image: np.ndarray, windows: Detections | None = None) -> Detections:
         """Vehicles in one RGB ``uint8`` image ``(H, W, 3)``: one box per heat blob.

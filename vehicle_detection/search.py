@@ -347,15 +347,36 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
     return _Band(np.ascontiguousarray(scaled), x0, y0, (x1 - x0) / nw, (y1 - y0) / nh, rows, cols)
 
 
-def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...]) -> np.ndarray:
-    """The band's windows in the input frame's pixels, clipped to the frame."""
+def _band_windows(band: _Band, config: FeatureConfig, f: float) -> np.ndarray:
+    """The band's windows in the input frame's pixels, float64 (n, 4), not clipped."""
     ppc, side = config.pixels_per_cell, config.window
     yy, xx = np.meshgrid(band.rows * ppc, band.cols * ppc, indexing="ij")
     x1 = band.x0 + xx.ravel() * band.sx
     y1 = band.y0 + yy.ravel() * band.sy
-    boxes = np.rint(np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f).astype(np.int64)
+    return np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f
+
+
+def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...]) -> np.ndarray:
+    """The band's windows in the input frame's pixels, clipped to the frame."""
+    boxes = np.rint(_band_windows(band, config, f)).astype(np.int64)
     h, w = frame_shape[:2]
     return np.clip(boxes, 0, [w, h, w, h])
+
+
+def _refined(band: _Band, model: VehicleClassifier, f: float, frame_shape: tuple[int, ...], keep: np.ndarray) -> np.ndarray:
+    """Refined boxes (:mod:`~vehicle_detection.refine`) of the band's windows selected by ``keep``."""
+    cfg = model.config
+    ppc, side = cfg.pixels_per_cell, cfg.window
+    index = np.flatnonzero(keep)
+    if not len(index):
+        return np.zeros((0, 4), np.int64)
+    n_cols = len(band.cols)
+    patches = np.empty((len(index), side, side, 3), np.uint8)
+    for j, i in enumerate(index.tolist()):
+        r, c = band.rows[i // n_cols] * ppc, band.cols[i % n_cols] * ppc
+        patches[j] = band.image[r : r + side, c : c + side]
+    windows = _band_windows(band, cfg, f)[index]
+    return model.box_regressor.refine(windows, extract_features(patches, cfg), frame_shape)
 
 
 def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[np.ndarray]:
@@ -445,7 +466,7 @@ def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassif
     for k in np.unique(scale_index):
         if not 0 <= k < len(plan.scales):
             raise ValueError(f"scale_index {k} is not a scale of the plan ({len(plan.scales)} scales)")
-        band = _band(work, plan.scales[k], cfg, plan.overhang)
+        band = _band(work, plan.scales[k], cfg, plan.overhang, plan.y_shift)
         if band is None:
             raise ValueError(f"scale {k} of the plan searches no window in a {frame.shape[1]}x{frame.shape[0]} frame")
         boxes = _band_boxes(band, cfg, f, frame.shape)
@@ -791,5 +812,10 @@ def search(
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
             scores = _score_band_where(band, model, mask)
             keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
-        parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
-    return Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
+        found = _windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k)
+        if model.box_regressor is not None and not all_windows:
+            found = found.replace(data={**found.data, "box": _refined(band, model, f, frame.shape, keep)})
+        parts.append(found)
+    if not parts:
+        return _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
+    return Detections.concatenate(parts)
