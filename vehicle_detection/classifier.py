@@ -46,6 +46,7 @@ __all__ = [
     "load_default_model",
     "split_indices",
     "train",
+    "with_box_refinement",
     "sweep",
     "sweep_configs",
 ]
@@ -499,6 +500,31 @@ def train(
         random_state=random_state,
     )
     return model.replace(metrics=metrics)
+
+
+def with_box_refinement(model: VehicleClassifier, annotations, *, alpha: float = 1000.0) -> VehicleClassifier:
+    """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
+
+    Heat then goes to each window's refined box as it is (no fixed window inset).
+
+    Parameters
+    ----------
+    annotations : sequence of Annotations
+        Labelled frames; frames you score later must not be among them.
+    alpha : float
+        Ridge penalty.
+    """
+    from .mining import labelled_frames
+    from .refine import fit_box_regressor
+
+    samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
+    t = time.perf_counter()
+    regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height)
+    cfg = model.detector_config
+    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0)))
+    metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "seconds": round(time.perf_counter() - t, 3),
+                                                    "labels": [str(a.path) for a in annotations]}}
+    return model.replace(box_regressor=regressor, detector_config=cfg, metrics=metrics)
 
 
 # --- parameter sweep ---------------------------------------------------------------------------

@@ -141,6 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--extra-negatives", action="append", default=[], metavar="DIR",
                    help="add the non-vehicle PNGs of DIR (laid out as DIR/non-vehicles/<source>/, e.g. from mine-negatives, "
                    "or PNGs directly in DIR), each source with its own split groups; repeatable")
+    p.add_argument("--labels", nargs="+", default=[], metavar="L.json",
+                   help="hand-labelled frames of your own cameras (the evaluate format): their cars are added as vehicle "
+                   "patches, and the box refinement is learned from them. Never pass frames you score later")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on the last line")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")
@@ -327,8 +330,10 @@ def _train_report(model) -> dict:
 
 
 def _cmd_train(args) -> int:
-    from .classifier import DEFAULT_C, train
+    from .classifier import DEFAULT_C, train, with_box_refinement
     from .data import check_split_sizes, default_data_dir, load_dataset
+    from .evaluate import load_annotations
+    from .mining import labelled_dataset
 
     config = _feature_config(args)
     root = default_data_dir(args.data_dir)
@@ -337,8 +342,13 @@ def _cmd_train(args) -> int:
     t = time.perf_counter()
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates, extra_negatives=args.extra_negatives)
     load_s = time.perf_counter() - t
+    labels = [load_annotations(p) for p in args.labels]
+    if labels:
+        ds = ds.concatenate(labelled_dataset(labels))
     check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed)
+    if labels:
+        model = with_box_refinement(model, labels)
     extra = {}
     if args.extra_negatives:
         from .data import _list_extra

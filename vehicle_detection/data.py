@@ -100,6 +100,30 @@ class Dataset:
         """The patches selected by a boolean mask or index array."""
         return Dataset(*(getattr(self, f)[index] for f in ("images", "labels", "sources", "names", "groups", "digests")))
 
+    @classmethod
+    def from_patches(cls, parts: Iterable[tuple[np.ndarray, list[str], str]], *, label: int) -> Dataset:
+        """Patches made in memory, one class: ``(patches, names, group_key)`` per part.
+
+        Patches of one ``group_key`` share a group; the source is each name's folder.
+        """
+        parts = [p for p in parts if len(p[0])]
+        if not parts:
+            return cls(np.zeros((0, *PATCH_SHAPE), np.uint8), *(np.zeros(0, d) for d in (np.int8, str, str, np.int64, str)))
+        images = np.concatenate([p[0] for p in parts])
+        names = np.array([n for p in parts for n in p[1]])
+        keys = [p[2] for p in parts for _ in p[1]]
+        _, groups = np.unique(keys, return_inverse=True)
+        digests = np.array([hashlib.sha1(im.tobytes()).hexdigest() for im in images])
+        sources = np.array([n.rsplit("/", 1)[0] for n in names])
+        return cls(images, np.full(len(images), label, np.int8), sources, names, groups.astype(np.int64), digests)
+
+    def concatenate(self, other: Dataset) -> Dataset:
+        """This set followed by ``other``, whose groups are renumbered to stay apart from these."""
+        offset = int(self.groups.max()) + 1 if len(self) else 0
+        fields = ("images", "labels", "sources", "names", "digests")
+        joined = {f: np.concatenate([getattr(self, f), getattr(other, f)]) for f in fields}
+        return Dataset(groups=np.concatenate([self.groups, other.groups + offset]), **joined)
+
     def counts(self) -> dict[str, int]:
         """Number of patches per source folder, sorted by folder."""
         src, n = np.unique(self.sources, return_counts=True)

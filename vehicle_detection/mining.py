@@ -49,13 +49,16 @@ from pathlib import Path
 import numpy as np
 
 from ._files import PARTIAL_SUFFIX
-from .data import MINED_NAME
+from .data import MINED_NAME, Dataset
 from .detections import Detections
 from .errors import InputError, OutputError
 from .evaluate import Annotations, FrameLabels
 from .geometry import box_area, box_intersection, box_iou, match_boxes
 
 __all__ = [
+    "labelled_frames",
+    "vehicle_patches",
+    "labelled_dataset",
     "MiningSource",
     "MinedNegatives",
     "labels_at",
@@ -249,6 +252,57 @@ def _frames_of(path: Path, labels: Annotations | None = None) -> Iterator[tuple[
     with closing(read_frames(path)) as frames:
         for i, frame in enumerate(frames):
             yield i, (lambda frame=frame: frame)
+
+
+def labelled_frames(annotations: Annotations) -> Iterator[tuple[int, np.ndarray, FrameLabels]]:
+    """``(index, frame, labels)`` of every labelled frame of an annotation file's video or folder."""
+    source = annotations.source
+    if source is None:
+        raise InputError(f"{annotations.path}: the labels name no video")
+    for index, load in _frames_of(source, annotations):
+        if index in annotations.frames:
+            yield index, load(), annotations.frames[index]
+
+
+def vehicle_patches(
+    frame: np.ndarray, cars: np.ndarray, rng: np.random.Generator, *, per_car: int = 4, side: int = 64,
+    reference_height: int = 720, widen: tuple[float, float] = (1.0, 1.2), shift: float = 0.05,
+) -> np.ndarray:
+    """Square patches of labelled vehicles, framed as the training set frames them.
+
+    Each patch is centred on its vehicle (moved by up to ``shift`` of its side), as wide as the
+    vehicle's larger dimension times a factor drawn from ``widen``, cut from the frame resized
+    to ``reference_height`` rows (as the search sees it) and resized to ``side`` pixels.
+
+    Returns
+    -------
+    ndarray of uint8, shape (len(cars) * per_car, side, side, 3)
+    """
+    from .refine import crop_windows, jittered_windows, working_frame
+
+    work, f = working_frame(frame, reference_height)
+    cars = np.asarray(cars, np.float64).reshape(-1, 4) * f
+    if not len(cars):
+        return np.zeros((0, side, side, 3), np.uint8)
+    wins = np.concatenate([jittered_windows(c, rng, per_car, size_range=widen, shift=shift) for c in cars])
+    return crop_windows(work, wins, side)
+
+
+def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 4, block: int = 30, random_state: int = 0) -> Dataset:
+    """Vehicle patches (:func:`vehicle_patches`) of every car of labelled frames, as training data.
+
+    Each annotation file is a source ``vehicles/labelled_<input>``; its patches are grouped by
+    blocks of ``block`` frames, so a grouped split keeps neighbouring frames on one side.
+    """
+    rng = np.random.default_rng(random_state)
+    parts = []
+    for ann in annotations:
+        name = _input_name(ann.source)
+        for index, frame, labels in labelled_frames(ann):
+            patches = vehicle_patches(frame, labels.cars, rng, per_car=per_car)
+            names = [f"vehicles/labelled_{name}/{name}__f{index}__{k}.png" for k in range(len(patches))]
+            parts.append((patches, names, f"{name}/{index // block}"))
+    return Dataset.from_patches(parts, label=1)
 
 
 def _input_name(path: Path) -> str:

@@ -26,7 +26,7 @@ import numpy as np
 from .features import FeatureConfig, extract_features
 from .geometry import as_boxes
 
-__all__ = ["BoxRegressor", "edge_offsets", "apply_offsets", "jittered_windows", "fit_box_regressor"]
+__all__ = ["BoxRegressor", "edge_offsets", "apply_offsets", "jittered_windows", "crop_windows", "working_frame", "fit_box_regressor"]
 
 #: Largest predicted edge offset, in window sizes: a window far off its vehicle is not trusted
 #: to move further than this.
@@ -125,8 +125,30 @@ def jittered_windows(box: np.ndarray, rng: np.random.Generator, n: int, *, size_
     return np.stack([cx - side / 2, cy - side / 2, cx + side / 2, cy + side / 2], axis=1)
 
 
-def _crops(frame: np.ndarray, windows: np.ndarray, side: int) -> np.ndarray:
-    """Windows cut from ``frame`` (mirrored beyond its edges) and resized to ``side`` pixels."""
+def working_frame(frame: np.ndarray, height: int) -> tuple[np.ndarray, float]:
+    """``frame`` resized to ``height`` rows as the search sees it, and the factor applied."""
+    f = height / frame.shape[0]
+    if f == 1:
+        return frame, 1.0
+    size = (max(1, round(frame.shape[1] * f)), height)
+    return cv2.resize(frame, size, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR), f
+
+
+def crop_windows(frame: np.ndarray, windows: np.ndarray, side: int) -> np.ndarray:
+    """Windows cut from an RGB ``uint8`` frame (mirrored beyond its edges), resized to ``side``.
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+    windows : array_like, shape (n, 4)
+        Boxes in frame pixels (rounded to whole pixels); they may reach beyond the frame.
+    side : int
+
+    Returns
+    -------
+    ndarray of uint8, shape (n, side, side, 3)
+    """
+    windows = np.rint(np.asarray(windows, np.float64)).reshape(-1, 4)
     h, w = frame.shape[:2]
     pad = int(np.ceil(max(0.0, -windows.min(initial=0.0), (windows[:, 2] - w).max(initial=0.0), (windows[:, 3] - h).max(initial=0.0)))) + 1
     padded = cv2.copyMakeBorder(frame, pad, pad, pad, pad, cv2.BORDER_REFLECT_101) if pad > 1 else frame
@@ -174,11 +196,10 @@ def fit_box_regressor(
         boxes = as_boxes(boxes, "boxes").astype(np.float64)
         if not len(boxes):
             continue
-        f = reference_height / frame.shape[0]
-        work = frame if f == 1 else cv2.resize(frame, (round(frame.shape[1] * f), reference_height), interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
+        work, f = working_frame(frame, reference_height)
         boxes = boxes * f
         wins = np.concatenate([jittered_windows(b, rng, per_box) for b in boxes])
-        feats.append(extract_features(_crops(work, wins, config.window), config))
+        feats.append(extract_features(crop_windows(work, wins, config.window), config))
         targets.append(edge_offsets(np.rint(wins), np.repeat(boxes, per_box, axis=0)))
     if not feats:
         raise ValueError("no labelled vehicles to learn box refinement from")

@@ -36,6 +36,7 @@ from ._jit import njit
 from .detections import Detections
 from .features import FeatureConfig, _cell_squares, _clipped_block, convert_color, extract_features, hog_input, region_hog
 from .images import as_rgb_uint8, check_frame_shape
+from .refine import working_frame
 
 if TYPE_CHECKING:
     from .classifier import VehicleClassifier
@@ -305,11 +306,7 @@ def _windows(boxes: np.ndarray, scores: np.ndarray, scale_index: int) -> Detecti
 def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, float]:
     h, w = frame.shape[:2]
     check_frame_shape(h, w, "frame", reference_height=plan.reference_height)
-    if h == plan.reference_height:
-        return frame, 1.0
-    f = plan.reference_height / h
-    resized = cv2.resize(frame, (max(1, round(w * f)), plan.reference_height), interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
-    return resized, f
+    return working_frame(frame, plan.reference_height)
 
 
 def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: float = 0.0, y_shift: int = 0) -> _Band | None:

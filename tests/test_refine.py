@@ -1,0 +1,153 @@
+"""Box refinement: offsets, clipping, learning on synthetic frames, and the model file."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vehicle_detection.classifier import VehicleClassifier, load_default_model
+from vehicle_detection.errors import ModelError
+from vehicle_detection.features import FeatureConfig
+from vehicle_detection.geometry import box_iou
+from vehicle_detection.refine import (
+    MAX_OFFSET,
+    BoxRegressor,
+    apply_offsets,
+    crop_windows,
+    edge_offsets,
+    fit_box_regressor,
+    jittered_windows,
+)
+from vehicle_detection.search import SearchPlan, SearchScale, search
+
+SMALL = FeatureConfig(color_space="YCrCb", orientations=9, hog_channels=(0,), spatial_size=8, hist_bins=8)
+
+
+def test_offsets_move_windows_onto_their_boxes():
+    windows = np.array([[100, 200, 164, 264], [0, 0, 128, 128]])
+    boxes = np.array([[90, 220, 180, 260], [10, 30, 120, 100]])
+    d = edge_offsets(windows, boxes)
+    assert d[0].tolist() == pytest.approx([-10 / 64, 20 / 64, 16 / 64, -4 / 64])
+    assert apply_offsets(windows, d, (720, 1280)).tolist() == boxes.tolist()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(-300, 1500), st.integers(-300, 800), st.integers(8, 600),
+    st.lists(st.floats(-5, 5, allow_nan=False), min_size=4, max_size=4), st.integers(1, 3),
+)
+def test_refinement_never_leaves_the_frame(x, y, side, offsets, n_coef):
+    h, w = 480, 854
+    window = np.array([[x, y, x + side, y + side]], np.float64)
+    reg = BoxRegressor(np.zeros((4, n_coef)), np.array(offsets))
+    box = reg.refine(window, np.zeros((1, n_coef)), (h, w))[0]
+    assert 0 <= box[0] < box[2] <= w and 0 <= box[1] < box[3] <= h
+    inside = apply_offsets(window, np.clip(offsets, -MAX_OFFSET, MAX_OFFSET), (10**6, 10**6))[0]
+    if 0 <= inside[0] < inside[2] <= w and 0 <= inside[1] < inside[3] <= h:  # no clipping needed: moved as predicted
+        assert box.tolist() == inside.tolist()
+
+
+def test_offsets_are_bounded():
+    reg = BoxRegressor(np.zeros((4, 2)), np.array([3.0, -3.0, 0.1, -0.1]))
+    assert reg.offsets(np.zeros((1, 2)))[0].tolist() == [MAX_OFFSET, -MAX_OFFSET, 0.1, -0.1]
+
+
+def test_regressor_checks_its_arrays():
+    with pytest.raises(ValueError):
+        BoxRegressor(np.zeros((3, 5)), np.zeros(3))
+    with pytest.raises(ValueError):
+        BoxRegressor(np.full((4, 5), np.nan), np.zeros(4))
+
+
+def test_crop_windows_mirrors_beyond_the_edges():
+    frame = np.arange(20 * 30 * 3, dtype=np.uint8).reshape(20, 30, 3)
+    inside = crop_windows(frame, [[5, 5, 13, 13]], 8)[0]
+    assert np.array_equal(inside, frame[5:13, 5:13])
+    edge = crop_windows(frame, [[-4, 0, 4, 8]], 8)[0]
+    assert np.array_equal(edge[:, 4:], frame[0:8, 0:4]) and np.array_equal(edge[:, 3], frame[0:8, 1])
+
+
+def _synthetic_road(rng, n_cars=2, h=240, w=400):
+    """A grey textured road with dark, wheeled boxes: frames and the cars' boxes."""
+    frame = rng.integers(90, 130, (h, w, 3)).astype(np.uint8)
+    boxes = []
+    for _ in range(n_cars):
+        bw = int(rng.integers(50, 110))
+        bh = int(bw * rng.uniform(0.6, 0.9))
+        x, y = int(rng.integers(0, w - bw)), int(rng.integers(0, h - bh))
+        frame[y : y + bh, x : x + bw] = rng.integers(10, 40, 3)
+        frame[y + bh // 5 : y + bh // 2, x + bw // 8 : x + bw - bw // 8] = 200  # a window
+        boxes.append([x, y, x + bw, y + bh])
+    return frame, np.array(boxes)
+
+
+def test_learned_refinement_tightens_windows_on_held_out_frames():
+    rng = np.random.default_rng(0)
+    train = [_synthetic_road(rng, 1) for _ in range(40)]
+    reg = fit_box_regressor(train, SMALL, per_box=24, alpha=10.0, reference_height=240)
+    from vehicle_detection.features import extract_features
+
+    before, after = [], []
+    for frame, boxes in (_synthetic_road(rng, 1) for _ in range(15)):
+        wins = np.rint(jittered_windows(boxes[0], rng, 10))
+        refined = reg.refine(wins, extract_features(crop_windows(frame, wins, SMALL.window), SMALL), frame.shape)
+        before.append(box_iou(wins, boxes)[:, 0].mean())
+        after.append(box_iou(refined, boxes)[:, 0].mean())
+    assert np.mean(after) > np.mean(before) + 0.1
+
+
+def _with_regressor(model: VehicleClassifier, seed: int = 0) -> VehicleClassifier:
+    rng = np.random.default_rng(seed)
+    n = model.config.n_features
+    return model.replace(box_regressor=BoxRegressor(rng.normal(0, 1e-4, (4, n)), [-0.05, 0.1, 0.05, -0.1]))
+
+
+def test_model_file_keeps_the_refinement(tmp_path):
+    model = _with_regressor(load_default_model())
+    loaded = VehicleClassifier.load(model.save(tmp_path / "m.npz"))
+    assert np.array_equal(loaded.box_regressor.coef, model.box_regressor.coef)
+    assert np.array_equal(loaded.box_regressor.intercept, model.box_regressor.intercept)
+    assert load_default_model().replace(box_regressor=None).box_regressor is None
+
+
+def _rewrite(path, out, drop=(), change=None):
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files if k not in drop}
+    if change:
+        arrays.update(change)
+    with open(out, "wb") as f:
+        np.savez(f, **arrays)
+    return out
+
+
+def test_model_file_with_a_broken_refinement_is_refused(tmp_path):
+    path = _with_regressor(load_default_model()).save(tmp_path / "m.npz")
+    with pytest.raises(ModelError, match="arrays"):
+        VehicleClassifier.load(_rewrite(path, tmp_path / "half.npz", drop=("box_intercept",)))
+    with pytest.raises(ModelError, match="box refinement"):
+        VehicleClassifier.load(_rewrite(path, tmp_path / "shape.npz", change={"box_coef": np.zeros((4, 3))}))
+    with pytest.raises(ModelError, match="checksum"):
+        VehicleClassifier.load(_rewrite(path, tmp_path / "edit.npz", change={"box_intercept": np.zeros(4)}))
+
+
+def test_search_reports_refined_boxes_inside_the_frame(test_frames):
+    model = _with_regressor(load_default_model(), seed=1)
+    plan = SearchPlan(scales=(SearchScale(2.0, 380, 620, step=1),), overhang=0.5)
+    n = 0
+    for frame in test_frames[:3]:
+        found = search(frame, model, plan)
+        n += len(found)
+        assert "box" in found.data and found.data["box"].shape == (len(found), 4)
+        boxes = found.data["box"]
+        h, w = frame.shape[:2]
+        assert np.all(boxes[:, :2] >= 0) and np.all(boxes[:, 2] <= w) and np.all(boxes[:, 3] <= h)
+        assert np.all(boxes[:, 2:] > boxes[:, :2])
+        plain = search(frame, model.replace(box_regressor=None), plan)
+        assert np.array_equal(plain.xyxy, found.xyxy) and np.array_equal(plain.score, found.score)
+        assert "box" not in plain.data
+    assert n > 0
