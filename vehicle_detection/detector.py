@@ -8,6 +8,12 @@
 * :meth:`Detector.track` follows vehicles through frames with a
   :class:`~vehicle_detection.tracker.Tracker`, which integrates heat over recent frames to
   reject one-frame false positives and keeps a stable, smoothed box per vehicle.
+
+Footage of other cameras is measured from its first frames (:meth:`Detector.for_footage`):
+the horizon the search bands move to (:mod:`~vehicle_detection.horizon`), and the black bars
+and static overlays (:mod:`~vehicle_detection.overlays`): only the picture inside the bars is
+searched, and windows lying mostly on the camera car's static parts are dropped before they
+make heat.
 """
 
 from __future__ import annotations
@@ -25,14 +31,18 @@ from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes
+from .images import as_rgb_uint8
+from .overlays import Overlays, active_area, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat
 
 __all__ = ["Detector"]
 
-#: Frames at the start of a video that the horizon is estimated from. They are held in memory
-#: until they are searched (about 33 MB at 1280x720).
+#: Frames at the start of a video that the horizon and the overlays are estimated from. They
+#: are held in memory until they are searched (about 33 MB at 1280x720).
 HORIZON_FRAMES = 12
+#: A window with more than this share of its area on the static overlay mask is dropped.
+MASKED_SHARE = 0.35
 
 
 class Detector:
@@ -54,6 +64,9 @@ class Detector:
     >>> len(found), found.track_id is None
     (2, True)
     """
+
+    _overlays: Overlays | None = None  # the footage's bars and mask (with_overlays); None: each frame's bars
+    _mask_sums: np.ndarray | None = None  # summed-area table of the mask
 
     def __init__(self, model: VehicleClassifier | None = None, config: DetectorConfig | None = None):
         self.model = load_default_model() if model is None else model
@@ -86,6 +99,16 @@ class Detector:
         out.config = self.config.at_horizon(float(horizon))
         return out
 
+    def with_overlays(self, overlays: Overlays | None) -> Detector:
+        """This detector searching only ``overlays.area`` and dropping windows on ``overlays.mask``
+        (None: as configured, each frame cut from its own bars when ``auto_overlays``)."""
+        if overlays is None:
+            return self
+        out = copy.copy(self)
+        out._overlays = overlays
+        out._mask_sums = None if overlays.mask is None else mask_integral(overlays.mask)
+        return out
+
     def _moved_to(self, estimate: float | None) -> float | None:
         """The horizon to search at for an estimate: None when there is none or it is the reference's."""
         from .horizon import TOLERANCE
@@ -97,25 +120,47 @@ class Detector:
     def for_footage(self, frames: Iterator[np.ndarray], tracker: Tracker) -> tuple[Detector, Iterator[np.ndarray]]:
         """The detector for a video's frames, and the frames (none consumed).
 
-        With :attr:`estimates_horizon`, the horizon is estimated from the first
-        :data:`HORIZON_FRAMES` frames the first time (and kept in ``tracker.state``, so later
-        chunks of the same video use it too); the returned detector searches there, unless the
-        estimate lies within :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
-        """
-        if not self.estimates_horizon:
-            return self, frames
-        from .horizon import estimate_horizon
+        The first time (for a fresh ``tracker``), the first :data:`HORIZON_FRAMES` frames are
+        measured, and what is found is kept in ``tracker.state``, so later chunks of the same
+        video are searched the same way:
 
+        * with ``auto_overlays``, the black bars and static overlays
+          (:func:`~vehicle_detection.overlays.find_overlays`): the returned detector searches the
+          picture inside the bars and drops windows with more than :data:`MASKED_SHARE` of their
+          area on the mask;
+        * with :attr:`estimates_horizon`, the horizon of the picture; the returned detector
+          searches there, unless the estimate lies within
+          :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
+        """
+        overlays, horizon = self.config.auto_overlays, self.estimates_horizon
+        if not (overlays or horizon):
+            return self, frames
         state = tracker.state
-        if not state.horizon_searched:
+        first: list[np.ndarray] = []
+        if (overlays and not state.overlays_searched) or (horizon and not state.horizon_searched):
             first = list(itertools.islice(frames, HORIZON_FRAMES))
-            state.horizon = self._moved_to(estimate_horizon(first, min_frames=min(3, len(first))))
-            state.horizon_searched = True
             frames = itertools.chain(first, frames)
-        return self.with_horizon(state.horizon), frames
+        if overlays and not state.overlays_searched:
+            from .overlays import find_overlays
+
+            state.overlays = find_overlays(first) if first else None
+            state.overlays_searched = True
+        if horizon and not state.horizon_searched:
+            from .horizon import estimate_horizon
+
+            pictures = [state.overlays.crop(f) for f in first] if overlays and state.overlays is not None else first
+            state.horizon = self._moved_to(estimate_horizon(pictures, min_frames=min(3, len(first))))
+            state.horizon_searched = True
+        det = self.with_horizon(state.horizon)
+        return (det.with_overlays(state.overlays) if overlays else det), frames
 
     def windows(self, frame: np.ndarray, around: np.ndarray | None = None) -> Detections:
         """Windows of one RGB ``uint8`` frame whose margin exceeds the plan's threshold.
+
+        Only the picture is searched: inside the footage's black bars (:meth:`with_overlays`,
+        set by :meth:`for_footage`), else, with ``auto_overlays``, inside the frame's own
+        (:func:`~vehicle_detection.overlays.active_area`). Windows with more than
+        :data:`MASKED_SHARE` of their area on the footage's static overlays are dropped.
 
         Parameters
         ----------
@@ -126,9 +171,22 @@ class Detector:
         Returns
         -------
         Detections
-            The windows, their SVM margins as ``score`` and ``data["scale_index"]``.
+            The windows in frame pixels, their SVM margins as ``score`` and ``data["scale_index"]``.
         """
-        return search(frame, self.model, self.config.plan, around=around)
+        frame = as_rgb_uint8(frame, name="frame")
+        overlays = self._overlays
+        if overlays is None and self.config.auto_overlays:
+            overlays = Overlays(frame.shape[:2], active_area(frame))
+        if overlays is None or not overlays.cropped:
+            found = search(frame, self.model, self.config.plan, around=around)
+        else:
+            shift = np.array(overlays.area[:2] * 2)
+            inside = None if around is None else np.asarray(around, np.float64).reshape(-1, 4) - shift
+            found = search(overlays.crop(frame), self.model, self.config.plan, around=inside)
+            found = found.replace(xyxy=found.xyxy + shift)
+        if self._mask_sums is None or not len(found):
+            return found
+        return found[mask_share(found.xyxy, self._mask_sums) <= MASKED_SHARE]
 
     def _scheduled_around(self, tracker: Tracker, frame_index: int) -> np.ndarray | None:
         """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes."""
@@ -160,6 +218,8 @@ class Detector:
             The image's hot windows when already computed (:meth:`windows`), to search once.
             An image is searched where the plan says (one frame is too little to estimate the
             horizon reliably); a camera whose horizon sits elsewhere needs :meth:`with_horizon`.
+            With ``auto_overlays``, only the picture inside the image's black bars is searched
+            (one frame cannot tell what stays still, so nothing is masked).
 
         Returns
         -------
@@ -184,7 +244,8 @@ class Detector:
         """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill).
 
         Live, nothing is seen ahead, so the horizon is not estimated: the plan as written, or
-        :meth:`with_horizon`.
+        :meth:`with_horizon`; each frame is cut from its own black bars, and nothing is masked
+        unless :meth:`with_overlays` says.
         """
         around = self._scheduled_around(tracker, tracker.state.frame_index)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
