@@ -174,9 +174,7 @@ class Detector:
             The windows in frame pixels, their SVM margins as ``score`` and ``data["scale_index"]``.
         """
         frame = as_rgb_uint8(frame, name="frame")
-        overlays = self._overlays
-        if overlays is None and self.config.auto_overlays:
-            overlays = Overlays(frame.shape[:2], active_area(frame))
+        overlays = self._picture(frame)
         if overlays is None or not overlays.cropped:
             found = search(frame, self.model, self.config.plan, around=around)
         else:
@@ -187,6 +185,25 @@ class Detector:
         if self._mask_sums is None or not len(found):
             return found
         return found[mask_share(found.xyxy, self._mask_sums) <= MASKED_SHARE]
+
+    def _picture(self, frame: np.ndarray) -> Overlays | None:
+        """The footage's overlays, else with ``auto_overlays`` the bars of ``frame`` itself, else None."""
+        if self._overlays is None and self.config.auto_overlays:
+            return Overlays(frame.shape[:2], active_area(frame))
+        return self._overlays
+
+    @staticmethod
+    def _inside(found: Detections, overlays: Overlays | None) -> Detections:
+        """``found`` cut to the picture: a box from heat cells anchored at the frame's corner may
+        reach up to a cell into the bars."""
+        if overlays is None or not overlays.cropped or not len(found):
+            return found
+        x1, y1, x2, y2 = overlays.area
+        xy = np.clip(found.xyxy, [x1, y1, x1, y1], [x2, y2, x2, y2])
+        if np.array_equal(xy, found.xyxy):
+            return found
+        keep = (xy[:, 2] > xy[:, 0]) & (xy[:, 3] > xy[:, 1])
+        return found[keep].replace(xyxy=xy[keep])
 
     def _scheduled_around(self, tracker: Tracker, frame_index: int) -> np.ndarray | None:
         """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes."""
@@ -234,7 +251,7 @@ class Detector:
             heat, self.config.image_threshold, cell=cfg.cell, min_size=cfg.min_size, aspect_range=cfg.aspect_range,
             peak_fraction=cfg.peak_fraction, split_size=cfg.split_size,
         )
-        return Detections(boxes, score=peaks)
+        return self._inside(Detections(boxes, score=peaks), self._picture(as_rgb_uint8(image, name="image")))
 
     def new_tracker(self) -> Tracker:
         """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""
@@ -253,7 +270,7 @@ class Detector:
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""
-        return tracker.update(self._tracker_input(windows), frame_shape)
+        return self._inside(tracker.update(self._tracker_input(windows), frame_shape), self._overlays)
 
     def track_frames(
         self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2
@@ -314,7 +331,7 @@ class Detector:
         def advance(frame, future):
             index = tracker.state.frame_index
             found = det.track_step(frame.shape, future.result(), tracker)
-            return frame, index, found, tracker.backfill
+            return frame, index, found, det._inside(tracker.backfill, det._overlays)
 
         pending: deque = deque()
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
