@@ -80,8 +80,8 @@ class MaskParams:
     dark_level : float
         Brightest mean grey (over the frames and the cell) of a dark cell ...
     dark_ratio : float
-        ... and at most this fraction of the median of the moved cells' (at night nearly
-        everything is dark: only what is much darker than the scene counts).
+        ... and at most this fraction of the median grey of the cells that moved (at night
+        nearly everything is dark: only what is much darker than the scene counts).
     min_area : float
         Smallest dark region, as a share of the frame.
     edge_level : float
@@ -114,7 +114,7 @@ class MaskParams:
     max_overlay: float = 0.02
 
 
-def _frame_list(frames) -> list[np.ndarray]:
+def _frame_list(frames: np.ndarray | Iterable[np.ndarray]) -> list[np.ndarray]:
     """One ``(H, W, 3)`` image, an ``(N, H, W, 3)`` array or an iterable of images -> list of images."""
     if isinstance(frames, np.ndarray) and frames.ndim == 3:
         frames = [frames]
@@ -177,7 +177,7 @@ def _pair(a: int, b: int, p: BarParams) -> int:
     return small
 
 
-def active_area(frames, params: BarParams = BarParams()) -> tuple[int, int, int, int]:
+def active_area(frames: np.ndarray | Iterable[np.ndarray], params: BarParams = BarParams()) -> tuple[int, int, int, int]:
     """The picture inside black letterbox or pillarbox bars.
 
     A bar is a run of lines (rows at the top and bottom, columns at the left and right) from
@@ -267,14 +267,14 @@ def _text_regions(edges: np.ndarray, p: MaskParams) -> np.ndarray:
     return keep[labels]
 
 
-def static_mask(frames, params: MaskParams = MaskParams()) -> np.ndarray:
+def static_mask(frames: np.ndarray | Iterable[np.ndarray], params: MaskParams = MaskParams()) -> np.ndarray:
     """Parts of the frames that belong to the camera car or the recording, not to the scene.
 
     The rule, on cells of the grey working image (:class:`MaskParams`): a cell is **still**
     when nearly all its pixels stay within compression noise over the frames,
     and has **moved** when most do not. Nothing is masked unless ``min_moving`` of the cells
     moved: the frames must show the scene going by, so that stillness means riding with the
-    camera. A still cell is then masked when it belongs to
+    camera. Then two kinds of region are masked:
 
     * a **dark region**: still cells darker than ``dark_level`` and than ``dark_ratio`` of the
       moving scene's median grey, 8-connected, touching the frame border and covering
@@ -343,14 +343,19 @@ class Overlays:
     mask: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
-        h, w = self.shape
-        x1, y1, x2, y2 = self.area
+        h, w = shape = tuple(int(v) for v in self.shape)
+        x1, y1, x2, y2 = area = tuple(int(v) for v in self.area)
         if not (0 <= x1 < x2 <= w and 0 <= y1 < y2 <= h):
-            raise ValueError(f"area {self.area} is not a box inside frames of {w}x{h}")
+            raise ValueError(f"area {area} is not a box inside frames of {w}x{h}")
+        object.__setattr__(self, "shape", shape)
+        object.__setattr__(self, "area", area)
         if self.mask is not None:
-            if self.mask.shape != (h, w) or self.mask.dtype != bool:
-                raise ValueError(f"mask must be bool of shape {(h, w)}; got {self.mask.dtype} {self.mask.shape}")
-            self.mask.flags.writeable = False
+            mask = np.asarray(self.mask)
+            if mask.shape != shape or mask.dtype != bool:
+                raise ValueError(f"mask must be bool of shape {shape}; got {mask.dtype} {mask.shape}")
+            mask = mask.copy()
+            mask.flags.writeable = False
+            object.__setattr__(self, "mask", mask)
 
     @property
     def cropped(self) -> bool:
@@ -381,7 +386,9 @@ class Overlays:
         return lines
 
 
-def find_overlays(frames, bars: BarParams = BarParams(), mask: MaskParams = MaskParams()) -> Overlays:
+def find_overlays(
+    frames: np.ndarray | Iterable[np.ndarray], bars: BarParams = BarParams(), mask: MaskParams = MaskParams()
+) -> Overlays:
     """Bars and static overlays of a video's first ``frames`` (the mask measured inside the bars).
 
     Parameters
