@@ -45,6 +45,20 @@ HORIZON_FRAMES = 12
 MASKED_SHARE = 0.35
 
 
+def _footage_overlays(first: list) -> Overlays | None:
+    """The overlays of a video's first frames, measured on those up to the first that is not RGB
+    ``uint8`` of the first one's shape (the search reports that one, where it always has)."""
+    from .overlays import find_overlays
+
+    good: list[np.ndarray] = []
+    for frame in first:
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3 or (good and frame.shape != good[0].shape):
+            break
+        good.append(frame)
+    return find_overlays(good) if good else None
+
+
 class Detector:
     """Vehicle detector over images and videos.
 
@@ -141,14 +155,13 @@ class Detector:
             first = list(itertools.islice(frames, HORIZON_FRAMES))
             frames = itertools.chain(first, frames)
         if overlays and not state.overlays_searched:
-            from .overlays import find_overlays
-
-            state.overlays = find_overlays(first) if first else None
+            state.overlays = _footage_overlays(first)
             state.overlays_searched = True
         if horizon and not state.horizon_searched:
             from .horizon import estimate_horizon
 
-            pictures = [state.overlays.crop(f) for f in first] if overlays and state.overlays is not None else first
+            cut = state.overlays if overlays else None
+            pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
             state.horizon = self._moved_to(estimate_horizon(pictures, min_frames=min(3, len(first))))
             state.horizon_searched = True
         det = self.with_horizon(state.horizon)
