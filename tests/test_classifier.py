@@ -523,6 +523,22 @@ def test_version_1_files_are_migrated_with_the_settings_of_library_0_1(tmp_path)
     np.testing.assert_array_equal(old.coef, load_default_model().coef)
 
 
+def test_files_saved_before_the_overlay_setting_load_with_it_on(tmp_path):
+    """The embedded model and older format-2 files carry no ``auto_overlays``: they get it, as it
+    changes nothing on footage without bars or static overlays."""
+    src = load_default_model().save(tmp_path / "new.npz")
+    d, meta = _contents(src)
+    assert meta["detector_config"]["auto_overlays"] is True
+    del meta["detector_config"]["auto_overlays"]
+    meta["sha256"] = _digest({k: d[k] for k in ("scaler_mean", "scaler_scale", "coef", "intercept")}, meta)
+    old = VehicleClassifier.load(_write(tmp_path / "old.npz", d, meta))
+    assert old.detector_config == load_default_model().detector_config and old.detector_config.auto_overlays
+    off = load_default_model().replace(
+        detector_config=load_default_model().detector_config.replace(auto_overlays=False)
+    ).save(tmp_path / "off.npz")
+    assert VehicleClassifier.load(off).detector_config.auto_overlays is False
+
+
 def test_oversized_members_are_refused_before_reading(tmp_path):
     import zipfile
 

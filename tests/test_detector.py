@@ -91,3 +91,134 @@ def test_detector_refuses_wrong_types():
 def test_no_box_on_the_empty_road(test_frames):
     """test2.jpg shows an empty road (and the barrier at the left edge): no box."""
     assert len(Detector().detect_image(test_frames[1])) == 0
+
+
+# --- black bars and static overlays (see also test_overlays.py) ------------------------------
+
+
+def _pad(frame, top, bottom, left, right):
+    import cv2
+
+    return cv2.copyMakeBorder(np.ascontiguousarray(frame), top, bottom, left, right, cv2.BORDER_CONSTANT, value=(0, 0, 0))
+
+
+def _same_boxes(a, b, tol):
+    """Two box sets equal within ``tol`` pixels, rows in any order."""
+    if len(a) != len(b):
+        return False
+    return not len(a) or np.abs(np.sort(a, axis=0) - np.sort(b, axis=0)).max() <= tol
+
+
+@pytest.mark.parametrize("bars, tol", [((0, 0, 160, 160), 0), ((96, 96, 0, 0), 0), ((45, 45, 101, 101), 8)])
+def test_no_box_on_black_bars_of_images(test_frames, bars, tol):
+    """Padded images give the boxes of the picture, shifted: exactly when the bars are whole heat
+    cells, else within one cell (8 px)."""
+    top, bottom, left, right = bars
+    det = Detector()
+    for frame in test_frames:
+        found = det.detect_image(_pad(frame, *bars))
+        xy = found.xyxy - [left, top, left, top]
+        assert (xy >= 0).all() and (xy[:, [0, 2]] <= 1280).all() and (xy[:, [1, 3]] <= 720).all()
+        assert _same_boxes(xy, det.detect_image(frame).xyxy, tol)
+    # The search sees the picture at its own height: without the cut, letterboxed cars are smaller.
+    off = Detector(config=det.config.replace(auto_overlays=False))
+    if top:
+        assert not _same_boxes(off.detect_image(_pad(test_frames[0], *bars)).xyxy - [left, top, left, top],
+                               det.detect_image(test_frames[0]).xyxy, tol)
+
+
+@pytest.fixture(scope="module")
+def clip_a_frames():
+    from itertools import islice
+
+    from conftest import REPO
+    from vehicle_detection.video import read_frames
+
+    frames = read_frames(REPO / "dev_set" / "project_video_clip_A.mp4")
+    try:
+        return list(islice(frames, 30))
+    finally:
+        frames.close()
+
+
+@pytest.mark.parametrize("bars, tol", [((0, 0, 160, 160), 0), ((48, 48, 104, 104), 0), ((45, 45, 101, 101), 12)])
+def test_no_box_on_black_bars_of_a_video(clip_a_frames, bars, tol):
+    top, bottom, left, right = bars
+    det = Detector()
+    reference = Detections.concatenate(det.track(clip_a_frames))
+    tracker = det.new_tracker()
+    found = Detections.concatenate(det.track([_pad(f, *bars) for f in clip_a_frames], tracker))
+    h, w = clip_a_frames[0].shape[:2]
+    assert tracker.state.overlays.area == (left, top, left + w, top + h)
+    assert tracker.state.overlays.mask is None
+    xy = found.xyxy - [left, top, left, top]
+    assert len(reference) >= 30 and (xy >= 0).all() and (xy[:, [0, 2]] <= w).all() and (xy[:, [1, 3]] <= h).all()
+    for i in range(len(clip_a_frames)):
+        assert _same_boxes(xy[found.frame == i], reference.xyxy[reference.frame == i], tol), i
+
+
+def test_overlays_are_kept_in_the_tracker_state_across_chunks(clip_a_frames):
+    from vehicle_detection.tracker import Tracker
+
+    det = Detector()
+    padded = [_pad(f, 0, 0, 160, 160) for f in clip_a_frames[:12]]
+    tracker = det.new_tracker()
+    list(det.track(padded, tracker))
+    state = tracker.state
+    assert state.overlays_searched and state.overlays.area == (160, 0, 1440, 720)
+    later = Tracker(det.config.tracker, state)
+    assert later.state.overlays is state.overlays  # immutable: shared by copies
+    moved, rest = det.for_footage(iter([np.full((720, 1600, 3), 128, np.uint8)] * 3), later)
+    assert moved._overlays is state.overlays and sum(1 for _ in rest) == 3  # not measured again
+
+
+def test_windows_on_the_static_mask_are_dropped(test_frames):
+    from vehicle_detection.detector import MASKED_SHARE
+    from vehicle_detection.overlays import Overlays
+
+    det = Detector()
+    frame = test_frames[0]  # a black car at x 816..952, a white one from x 1048 to the right edge
+    windows = det.windows(frame)
+    mask = np.zeros((720, 1280), bool)
+    mask[:, 1000:] = True  # as if the white car were glued to the camera
+    on_mask = np.clip(windows.xyxy[:, 2] - 1000, 0, None) / (windows.xyxy[:, 2] - windows.xyxy[:, 0]) > MASKED_SHARE
+    assert on_mask.sum() >= 5 and (~on_mask).sum() >= 5
+    masked = det.with_overlays(Overlays((720, 1280), (0, 0, 1280, 720), mask))
+    assert masked.windows(frame) == windows[~on_mask]
+    assert masked.detect_image(frame).xyxy.tolist() == [[816, 400, 952, 496]]
+    assert len(det.detect_image(frame)) == 2
+    assert det.with_overlays(None) is det
+
+
+def test_overlays_can_be_turned_off(clip_a_frames):
+    det = Detector(config=DetectorConfig().replace(auto_overlays=False))
+    tracker = det.new_tracker()
+    moved, _ = det.for_footage(iter([_pad(f, 0, 0, 160, 160) for f in clip_a_frames[:12]]), tracker)
+    assert tracker.state.overlays is None and not tracker.state.overlays_searched and moved._overlays is None
+
+
+def test_config_overlay_setting_round_trips():
+    cfg = DetectorConfig()
+    assert cfg.auto_overlays and DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    off = cfg.replace(auto_overlays=False)
+    assert DetectorConfig.from_dict(off.to_dict()) == off and off.to_dict()["auto_overlays"] is False
+    old = cfg.to_dict()
+    del old["auto_overlays"]  # files saved before it get it: it changes nothing on the project camera
+    assert DetectorConfig.from_dict(old).auto_overlays is True
+    assert DetectorConfig.library_0_1().auto_overlays is False
+    with pytest.raises(ValueError, match="auto_overlays"):
+        DetectorConfig(auto_overlays=1)
+
+
+def test_cli_reports_the_bars(tmp_path, capsys, clip_a_frames):
+    from vehicle_detection.cli import main
+    from vehicle_detection.video import VideoWriter
+
+    video = tmp_path / "pillarbox.mp4"
+    with VideoWriter(video, 25, (1600, 720)) as writer:
+        for frame in clip_a_frames[:12]:
+            writer.write(_pad(frame, 0, 0, 160, 160))
+    assert main(["detect", str(video), "--no-progress"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "picture: 1280x720 inside black bars" in out
+    assert not any(line.startswith(("static overlay:", "horizon:")) for line in out)

@@ -110,7 +110,7 @@ def test_video_horizon_is_kept_in_the_tracker_state_across_chunks():
     # The project camera's own footage leaves the plan as written.
     tracker3 = detector.new_tracker()
     det, _ = detector.for_footage(iter(_first_frames(REPO / "test_video.mp4")), tracker3)
-    assert det is detector and tracker3.state.horizon is None and tracker3.state.horizon_searched
+    assert det.config is detector.config and tracker3.state.horizon is None and tracker3.state.horizon_searched
 
 
 def test_config_horizon_settings_round_trip():

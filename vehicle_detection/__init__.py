@@ -33,6 +33,9 @@ _API = {
     "SearchScale": "search",
     "estimate_horizon": "horizon",
     "vanishing_row": "horizon",
+    "active_area": "overlays",
+    "static_mask": "overlays",
+    "find_overlays": "overlays",
     "Tracker": "tracker",
     "TrackerConfig": "tracker",
     "process_video": "pipeline",
@@ -123,6 +126,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .mining import MiningSource, mine_negatives, write_negatives
     from .search import SearchPlan, SearchScale
     from .horizon import estimate_horizon, vanishing_row
+    from .overlays import active_area, find_overlays, static_mask
     from .tracker import Tracker, TrackerConfig
     from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
     from .tracking_metrics import tracking_scores

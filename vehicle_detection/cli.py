@@ -683,9 +683,12 @@ def _cmd_detect_one(args) -> int:
             write_boxes_csv(boxes, table, overwrite=args.overwrite, inputs=inputs)
             n = len(table.frames())
             report = [f"{inp}: {len(table)} boxes in {n} frames; wrote {out} and {boxes} ({time.perf_counter() - t:.1f} s)"]
+            if tracker.state.overlays is not None:
+                report.extend(tracker.state.overlays.describe())
             if tracker.state.horizon is not None:
                 plan = detector.config.plan
-                report.append(f"horizon: {tracker.state.horizon:.3f} of the frame height, estimated from the video "
+                cropped = tracker.state.overlays is not None and tracker.state.overlays.cropped
+                report.append(f"horizon: {tracker.state.horizon:.3f} of the {'picture' if cropped else 'frame'} height, estimated from the video "
                               f"(the plan's {plan.reference_horizon:.3f}); search bands moved accordingly")
             if lanes_csv is not None:
                 report.append(f"lanes: {lanes_csv}")

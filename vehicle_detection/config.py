@@ -36,12 +36,18 @@ class DetectorConfig:
         When the plan fixes no ``horizon``, estimate the camera's horizon from a video's first
         frames (:mod:`~vehicle_detection.horizon`) and move the search bands to it. Where no
         estimate can be made, and for single images, the plan is used as written.
+    auto_overlays : bool
+        Search only the picture inside black bars, and drop windows lying mostly on the
+        camera car's static parts (bonnet, windscreen mount) or burnt-in text, all found from a
+        video's first frames (:mod:`~vehicle_detection.overlays`); single images are cut from
+        their own bars. Footage without either is searched as before.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     image_threshold: float = 3.0
     auto_horizon: bool = True
+    auto_overlays: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -52,8 +58,9 @@ class DetectorConfig:
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
             raise ValueError(f"DetectorConfig.image_threshold must be a finite number >= 0; got {t!r}")
         object.__setattr__(self, "image_threshold", float(t))
-        if not isinstance(self.auto_horizon, bool):
-            raise ValueError(f"DetectorConfig.auto_horizon must be True or False; got {self.auto_horizon!r}")
+        for name in ("auto_horizon", "auto_overlays"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"DetectorConfig.{name} must be True or False; got {getattr(self, name)!r}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -78,7 +85,7 @@ class DetectorConfig:
             decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
             aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
         )
-        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False)
+        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""
@@ -110,11 +117,16 @@ class DetectorConfig:
             "tracker": self.tracker.to_dict(),
             "image_threshold": self.image_threshold,
             "auto_horizon": self.auto_horizon,
+            "auto_overlays": self.auto_overlays,
         }
 
     @classmethod
     def from_dict(cls, d: Any) -> DetectorConfig:
-        """The inverse of :meth:`to_dict`; without ``auto_horizon`` (files saved before it), False.
+        """The inverse of :meth:`to_dict`.
+
+        Files saved before ``auto_horizon`` load with it False (their bands as they were
+        searched); files saved before ``auto_overlays`` with it True (it changes nothing on
+        footage without bars or static overlays, such as the project camera's).
 
         Raises
         ------
@@ -122,11 +134,14 @@ class DetectorConfig:
             If a key is missing or unknown, or a value is out of range.
         """
         keys = {"plan", "tracker", "image_threshold"}
-        if not isinstance(d, dict) or not keys <= set(d) <= keys | {"auto_horizon"}:
-            raise ValueError("expected an object with 'plan', 'tracker', 'image_threshold' and optionally 'auto_horizon'")
+        if not isinstance(d, dict) or not keys <= set(d) <= keys | {"auto_horizon", "auto_overlays"}:
+            raise ValueError(
+                "expected an object with 'plan', 'tracker', 'image_threshold' and optionally 'auto_horizon', 'auto_overlays'"
+            )
         return cls(
             plan=SearchPlan.from_dict(d["plan"]),
             tracker=TrackerConfig.from_dict(d["tracker"]),
             image_threshold=d["image_threshold"],
             auto_horizon=d.get("auto_horizon", False),
+            auto_overlays=d.get("auto_overlays", True),
         )

@@ -8,6 +8,12 @@
 * :meth:`Detector.track` follows vehicles through frames with a
   :class:`~vehicle_detection.tracker.Tracker`, which integrates heat over recent frames to
   reject one-frame false positives and keeps a stable, smoothed box per vehicle.
+
+Footage of other cameras is measured from its first frames (:meth:`Detector.for_footage`):
+the horizon the search bands move to (:mod:`~vehicle_detection.horizon`), and the black bars
+and static overlays (:mod:`~vehicle_detection.overlays`): only the picture inside the bars is
+searched, and windows lying mostly on the camera car's static parts are dropped before they
+make heat.
 """
 
 from __future__ import annotations
@@ -25,14 +31,32 @@ from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes
+from .images import as_rgb_uint8
+from .overlays import Overlays, active_area, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat
 
 __all__ = ["Detector"]
 
-#: Frames at the start of a video that the horizon is estimated from. They are held in memory
-#: until they are searched (about 33 MB at 1280x720).
+#: Frames at the start of a video that the horizon and the overlays are estimated from. They
+#: are held in memory until they are searched (about 33 MB at 1280x720).
 HORIZON_FRAMES = 12
+#: A window with more than this share of its area on the static overlay mask is dropped.
+MASKED_SHARE = 0.35
+
+
+def _footage_overlays(first: list) -> Overlays | None:
+    """The overlays of a video's first frames, measured on those up to the first that is not RGB
+    ``uint8`` of the first one's shape (the search reports that one, where it always has)."""
+    from .overlays import find_overlays
+
+    good: list[np.ndarray] = []
+    for frame in first:
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3 or (good and frame.shape != good[0].shape):
+            break
+        good.append(frame)
+    return find_overlays(good) if good else None
 
 
 class Detector:
@@ -54,6 +78,9 @@ class Detector:
     >>> len(found), found.track_id is None
     (2, True)
     """
+
+    _overlays: Overlays | None = None  # the footage's bars and mask (with_overlays); None: each frame's bars
+    _mask_sums: np.ndarray | None = None  # summed-area table of the mask
 
     def __init__(self, model: VehicleClassifier | None = None, config: DetectorConfig | None = None):
         self.model = load_default_model() if model is None else model
@@ -86,6 +113,16 @@ class Detector:
         out.config = self.config.at_horizon(float(horizon))
         return out
 
+    def with_overlays(self, overlays: Overlays | None) -> Detector:
+        """This detector searching only ``overlays.area`` and dropping windows on ``overlays.mask``
+        (None: as configured, each frame cut from its own bars when ``auto_overlays``)."""
+        if overlays is None:
+            return self
+        out = copy.copy(self)
+        out._overlays = overlays
+        out._mask_sums = None if overlays.mask is None else mask_integral(overlays.mask)
+        return out
+
     def _moved_to(self, estimate: float | None) -> float | None:
         """The horizon to search at for an estimate: None when there is none or it is the reference's."""
         from .horizon import TOLERANCE
@@ -97,25 +134,46 @@ class Detector:
     def for_footage(self, frames: Iterator[np.ndarray], tracker: Tracker) -> tuple[Detector, Iterator[np.ndarray]]:
         """The detector for a video's frames, and the frames (none consumed).
 
-        With :attr:`estimates_horizon`, the horizon is estimated from the first
-        :data:`HORIZON_FRAMES` frames the first time (and kept in ``tracker.state``, so later
-        chunks of the same video use it too); the returned detector searches there, unless the
-        estimate lies within :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
-        """
-        if not self.estimates_horizon:
-            return self, frames
-        from .horizon import estimate_horizon
+        The first time (for a fresh ``tracker``), the first :data:`HORIZON_FRAMES` frames are
+        measured, and what is found is kept in ``tracker.state``, so later chunks of the same
+        video are searched the same way:
 
+        * with ``auto_overlays``, the black bars and static overlays
+          (:func:`~vehicle_detection.overlays.find_overlays`): the returned detector searches the
+          picture inside the bars and drops windows with more than :data:`MASKED_SHARE` of their
+          area on the mask;
+        * with :attr:`estimates_horizon`, the horizon of the picture; the returned detector
+          searches there, unless the estimate lies within
+          :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
+        """
+        overlays, horizon = self.config.auto_overlays, self.estimates_horizon
+        if not (overlays or horizon):
+            return self, frames
         state = tracker.state
-        if not state.horizon_searched:
+        first: list[np.ndarray] = []
+        if (overlays and not state.overlays_searched) or (horizon and not state.horizon_searched):
             first = list(itertools.islice(frames, HORIZON_FRAMES))
-            state.horizon = self._moved_to(estimate_horizon(first, min_frames=min(3, len(first))))
-            state.horizon_searched = True
             frames = itertools.chain(first, frames)
-        return self.with_horizon(state.horizon), frames
+        if overlays and not state.overlays_searched:
+            state.overlays = _footage_overlays(first)
+            state.overlays_searched = True
+        if horizon and not state.horizon_searched:
+            from .horizon import estimate_horizon
+
+            cut = state.overlays if overlays else None
+            pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
+            state.horizon = self._moved_to(estimate_horizon(pictures, min_frames=min(3, len(first))))
+            state.horizon_searched = True
+        det = self.with_horizon(state.horizon)
+        return (det.with_overlays(state.overlays) if overlays else det), frames
 
     def windows(self, frame: np.ndarray, around: np.ndarray | None = None) -> Detections:
         """Windows of one RGB ``uint8`` frame whose margin exceeds the plan's threshold.
+
+        Only the picture is searched: inside the footage's black bars (:meth:`with_overlays`,
+        set by :meth:`for_footage`), else, with ``auto_overlays``, inside the frame's own
+        (:func:`~vehicle_detection.overlays.active_area`). Windows with more than
+        :data:`MASKED_SHARE` of their area on the footage's static overlays are dropped.
 
         Parameters
         ----------
@@ -126,9 +184,39 @@ class Detector:
         Returns
         -------
         Detections
-            The windows, their SVM margins as ``score`` and ``data["scale_index"]``.
+            The windows in frame pixels, their SVM margins as ``score`` and ``data["scale_index"]``.
         """
-        return search(frame, self.model, self.config.plan, around=around)
+        frame = as_rgb_uint8(frame, name="frame")
+        overlays = self._picture(frame)
+        if overlays is None or not overlays.cropped:
+            found = search(frame, self.model, self.config.plan, around=around)
+        else:
+            shift = np.array(overlays.area[:2] * 2)
+            inside = None if around is None else np.asarray(around, np.float64).reshape(-1, 4) - shift
+            found = search(overlays.crop(frame), self.model, self.config.plan, around=inside)
+            found = found.replace(xyxy=found.xyxy + shift)
+        if self._mask_sums is None or not len(found):
+            return found
+        return found[mask_share(found.xyxy, self._mask_sums) <= MASKED_SHARE]
+
+    def _picture(self, frame: np.ndarray) -> Overlays | None:
+        """The footage's overlays, else with ``auto_overlays`` the bars of ``frame`` itself, else None."""
+        if self._overlays is None and self.config.auto_overlays:
+            return Overlays(frame.shape[:2], active_area(frame))
+        return self._overlays
+
+    @staticmethod
+    def _inside(found: Detections, overlays: Overlays | None) -> Detections:
+        """``found`` cut to the picture: a box from heat cells anchored at the frame's corner may
+        reach up to a cell into the bars."""
+        if overlays is None or not overlays.cropped or not len(found):
+            return found
+        x1, y1, x2, y2 = overlays.area
+        xy = np.clip(found.xyxy, [x1, y1, x1, y1], [x2, y2, x2, y2])
+        if np.array_equal(xy, found.xyxy):
+            return found
+        keep = (xy[:, 2] > xy[:, 0]) & (xy[:, 3] > xy[:, 1])
+        return found[keep].replace(xyxy=xy[keep])
 
     def _scheduled_around(self, tracker: Tracker, frame_index: int) -> np.ndarray | None:
         """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes."""
@@ -165,6 +253,8 @@ class Detector:
             The image's hot windows when already computed (:meth:`windows`), to search once.
             An image is searched where the plan says (one frame is too little to estimate the
             horizon reliably); a camera whose horizon sits elsewhere needs :meth:`with_horizon`.
+            With ``auto_overlays``, only the picture inside the image's black bars is searched
+            (one frame cannot tell what stays still, so nothing is masked).
 
         Returns
         -------
@@ -179,7 +269,7 @@ class Detector:
             heat, self.config.image_threshold, cell=cfg.cell, min_size=cfg.min_size, aspect_range=cfg.aspect_range,
             peak_fraction=cfg.peak_fraction, split_size=cfg.split_size,
         )
-        return Detections(boxes, score=peaks)
+        return self._inside(Detections(boxes, score=peaks), self._picture(as_rgb_uint8(image, name="image")))
 
     def new_tracker(self) -> Tracker:
         """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""
@@ -189,7 +279,8 @@ class Detector:
         """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill).
 
         Live, nothing is seen ahead, so the horizon is not estimated: the plan as written, or
-        :meth:`with_horizon`.
+        :meth:`with_horizon`; each frame is cut from its own black bars, and nothing is masked
+        unless :meth:`with_overlays` says.
         """
         around = self._scheduled_around(tracker, tracker.state.frame_index)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
@@ -197,7 +288,7 @@ class Detector:
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""
-        return tracker.update(self._tracker_input(windows), frame_shape)
+        return self._inside(tracker.update(self._tracker_input(windows), frame_shape), self._overlays)
 
     def track_frames(
         self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2
@@ -258,7 +349,7 @@ class Detector:
         def advance(frame, future):
             index = tracker.state.frame_index
             found = det.track_step(frame.shape, future.result(), tracker)
-            return frame, index, found, tracker.backfill
+            return frame, index, found, det._inside(tracker.backfill, det._overlays)
 
         pending: deque = deque()
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -30,6 +30,9 @@ from numpy.typing import ArrayLike
 from .detections import Detections
 from .geometry import box_iou, inset_boxes, match_boxes
 from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat
+
+if TYPE_CHECKING:
+    from .overlays import Overlays
 
 __all__ = [
     "window_heat","TrackerConfig", "Track", "TrackerState", "Tracker"]
@@ -253,6 +256,12 @@ class TrackerState:
         way in every chunk.
     horizon_searched : bool
         Whether the detector has looked for the horizon.
+    overlays : Overlays or None
+        The black bars and static overlays the detector found in these frames
+        (:class:`~vehicle_detection.overlays.Overlays`; None: not looked for yet), kept for
+        later chunks like ``horizon``. Immutable, so copies share it.
+    overlays_searched : bool
+        Whether the detector has looked for them.
     """
 
     integrated: np.ndarray | None = None
@@ -262,6 +271,8 @@ class TrackerState:
     frame_shape: tuple[int, int] | None = None
     horizon: float | None = None
     horizon_searched: bool = False
+    overlays: Overlays | None = None
+    overlays_searched: bool = False
 
     def copy(self) -> TrackerState:
         """A deep copy: updating either afterwards leaves the other unchanged."""
@@ -273,6 +284,8 @@ class TrackerState:
             frame_shape=self.frame_shape,
             horizon=self.horizon,
             horizon_searched=self.horizon_searched,
+            overlays=self.overlays,
+            overlays_searched=self.overlays_searched,
         )
 
 
