@@ -151,3 +151,15 @@ def test_search_reports_refined_boxes_inside_the_frame(test_frames):
         assert np.array_equal(plain.xyxy, found.xyxy) and np.array_equal(plain.score, found.score)
         assert "box" not in plain.data
     assert n > 0
+
+
+def test_refined_boxes_follow_the_picture_inside_black_bars(test_frames):
+    from vehicle_detection.detector import Detector
+
+    detector = Detector(_with_regressor(load_default_model(), seed=2))
+    frame = test_frames[0]
+    padded = np.zeros((720, 1280 + 2 * 96, 3), np.uint8)
+    padded[:, 96:-96] = frame
+    plain, barred = detector.windows(frame), detector.windows(padded)
+    assert len(plain) > 0 and np.array_equal(plain.xyxy + [96, 0, 96, 0], barred.xyxy)
+    assert np.array_equal(plain.data["box"] + [96, 0, 96, 0], barred.data["box"])

@@ -194,7 +194,8 @@ class Detector:
             shift = np.array(overlays.area[:2] * 2)
             inside = None if around is None else np.asarray(around, np.float64).reshape(-1, 4) - shift
             found = search(overlays.crop(frame), self.model, self.config.plan, around=inside)
-            found = found.replace(xyxy=found.xyxy + shift)
+            data = {k: v + shift if k == "box" else v for k, v in found.data.items()}
+            found = found.replace(xyxy=found.xyxy + shift, data=data)
         if self._mask_sums is None or not len(found):
             return found
         return found[mask_share(found.xyxy, self._mask_sums) <= MASKED_SHARE]
