@@ -271,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="root folder: patches go to DIR/non-vehicles/NAME/")
     p.add_argument("--name", default="HardNegatives", help="source folder name under non-vehicles/ (default %(default)s)")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")
+    p.add_argument("--horizon", type=_horizon, default=None, metavar="FRACTION",
+                   help="search bands at this horizon (a fraction of the frame height from the top), for footage of "
+                   "another camera; default: the plan's bands")
     p.add_argument("--frames", default=None, metavar="RANGES",
                    help="only these frame indexes, e.g. 0-89,160-250 (inclusive; default all)")
     p.add_argument("--every", type=_positive_int, default=1, metavar="K", help="search every K-th frame (default %(default)s)")
@@ -897,7 +900,9 @@ def _cmd_mine_negatives(args) -> int:
     _refuse_inputs(dest, inputs)
     if dest.exists() and not args.overwrite:
         raise OutputError(f"{dest}: output exists; pass --overwrite to replace it")
-    detector = _load_detector(args.model)
+    if args.horizon == "auto":
+        raise UsageError("mine-negatives --horizon takes a fraction of the frame height (or 'plan'), not 'auto'")
+    detector = _load_detector(args.model, args.horizon)
     t = time.perf_counter()
 
     def progress(name, index):
