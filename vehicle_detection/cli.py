@@ -775,9 +775,13 @@ def _evaluate_sources(args, all_labels) -> dict[str, Path | None]:
     """The video or image folder of each labels file (``--video`` or the one it names)."""
     sources = {}
     for labels in all_labels:
-        sources[str(labels.path)] = Path(args.video) if args.video else labels.source
-        if sources[str(labels.path)] is None and (args.report or not args.boxes):
+        source = sources[str(labels.path)] = Path(args.video) if args.video else labels.source
+        if source is None and not args.boxes:
             raise InputError(f"{labels.path}: the labels name no video; give --video")
+        if source is None and args.report:
+            raise InputError(f"{labels.path}: the labels name no video (key 'video'); --report reads the labelled frames from it")
+        if args.report and not source.exists():
+            raise InputError(f"{labels.path}: {source} not found; --report reads the labelled frames from it")
     return sources
 
 
@@ -788,7 +792,7 @@ def _json_scores(pooled: dict) -> dict:
 
 def _cmd_evaluate(args) -> int:
     from .evaluate import evaluation_report, load_annotations, pool_by_camera, pool_reports
-    from .reporting import ReportSource, check_report_dir, labels_camera, write_evaluation_report
+    from .reporting import ReportSource, check_report_dir, labels_camera
     from .tables import read_boxes_csv
 
     all_labels = [load_annotations(p) for p in args.labels]
@@ -820,25 +824,39 @@ def _cmd_evaluate(args) -> int:
     cameras = {str(it.annotations.path): it.camera for it in items}
     by_camera = pool_by_camera(reports, cameras)
     pooled = pool_reports(reports.values())
-    if len(by_camera) > 1 or len(reports) > len(by_camera):
-        for cam, p in by_camera.items():
-            _print_report(f"camera {cam}", {k: v for k, v in p.items() if k != "labels"})
-    if len(reports) > 1:
-        _print_report("all", pooled)
+    _print_pooled(by_camera, pooled, len(reports))
     print(f"scored in {time.perf_counter() - t:.1f} s")
     if args.report:
-        inputs = [*args.labels, *(s for s in sources.values() if s is not None), *filter(None, [args.boxes, args.model, args.camera])]
-        written = write_evaluation_report(args.report, items, by_camera, pooled, overwrite=args.overwrite, inputs=inputs)
-        for file, counts in written.items():
-            extra = f" ({counts['shown']} tiles, {counts['left_out']} left out)" if counts else ""
-            print(f"report: {Path(args.report) / file}{extra}")
+        _write_evaluate_report(args, items, by_camera, pooled, sources)
     if args.json:
-        for name, cam in cameras.items():
-            reports[name]["camera"] = cam
-        out = _json_scores(pooled)
-        out.update(files=reports, cameras={cam: {**_json_scores(p), "n_cars": p["n_cars"], "labels": p["labels"]} for cam, p in by_camera.items()})
-        print(json.dumps(out))
+        print(json.dumps(_evaluate_json(reports, cameras, by_camera, pooled)))
     return 0
+
+
+def _print_pooled(by_camera: dict, pooled: dict, n_files: int) -> None:
+    """A block per camera (when a camera has several files, or there are several cameras), then "all"."""
+    if len(by_camera) > 1 or n_files > len(by_camera):
+        for cam, p in by_camera.items():
+            _print_report(f"camera {cam}", {k: v for k, v in p.items() if k != "labels"})
+    if n_files > 1:
+        _print_report("all", pooled)
+
+
+def _write_evaluate_report(args, items, by_camera: dict, pooled: dict, sources: dict) -> None:
+    from .reporting import write_evaluation_report
+
+    inputs = [*args.labels, *(s for s in sources.values() if s is not None), *filter(None, [args.boxes, args.model, args.camera])]
+    written = write_evaluation_report(args.report, items, by_camera, pooled, overwrite=args.overwrite, inputs=inputs)
+    for file, counts in written.items():
+        extra = f" ({counts['shown']} tiles, {counts['left_out']} left out)" if counts else ""
+        print(f"report: {Path(args.report) / file}{extra}")
+
+
+def _evaluate_json(reports: dict, cameras: dict, by_camera: dict, pooled: dict) -> dict:
+    """``evaluate --json``: the pooled scores, ``files`` (each with its ``camera``) and ``cameras``."""
+    files = {name: {**r, "camera": cameras[name]} for name, r in reports.items()}
+    per_camera = {cam: {**_json_scores(p), "n_cars": p["n_cars"], "labels": p["labels"]} for cam, p in by_camera.items()}
+    return {**_json_scores(pooled), "files": files, "cameras": per_camera}
 
 
 def _frame_ranges(text: str) -> set[int]:
