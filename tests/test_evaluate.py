@@ -616,6 +616,17 @@ def test_select_failures_puts_misses_and_false_positives_first():
     got = [(k, f.frame, f.kind) for k, f in select_failures(items, 3)]
     assert got == [(0, 4, "miss"), (1, 2, "miss"), (0, 9, "false positive")]
     assert select_failures(items, 0) == []
+    # 100 misses and one false positive, at most 60: the false positive is kept, and the 59
+    # misses are spread from the first frame to the last.
+    many = [(0, Failure(f, "miss", box, 0.0)) for f in range(100)] + [(0, Failure(50, "false positive", box, 0.0))]
+    got = select_failures(many, 60)
+    frames = [f.frame for _, f in got if f.kind == "miss"]
+    assert len(got) == 60 and [f.kind for _, f in got].count("false positive") == 1
+    assert frames[0] == 0 and frames[-1] == 99 and len(set(frames)) == 59 and frames == sorted(frames)
+    # Misses and false positives share the limit evenly; loose matches get what is left.
+    mixed = [(0, Failure(f, k, box, 0.0)) for k in ("miss", "false positive", "loose") for f in range(10)]
+    assert [f.kind for _, f in select_failures(mixed, 8)] == ["miss"] * 4 + ["false positive"] * 4
+    assert [f.kind for _, f in select_failures(mixed, 25)].count("loose") == 5
 
 
 def test_camera_sheet_caps_the_tiles(tmp_path):

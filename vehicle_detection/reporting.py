@@ -4,9 +4,10 @@
 
 * ``cameras.md`` and ``cameras.csv``: one row per camera (:func:`camera_rows`), and a last row
   ``all`` when there are several cameras;
-* ``failures_<camera>.png``: one contact sheet per camera, a 256-colour PNG, (:func:`camera_sheet`) with a tile for
-  every miss, false positive and loose match (:func:`~vehicle_detection.evaluate.find_failures`)
-  of the camera's labels files, at most ``limit`` tiles (misses and false positives first).
+* ``failures_<camera>.png``: one contact sheet per camera, a 256-colour PNG
+  (:func:`camera_sheet`), with a tile for every miss, false positive and loose match
+  (:func:`~vehicle_detection.evaluate.find_failures`) of the camera's labels files, at most
+  ``limit`` tiles (:func:`select_failures`: misses and false positives first).
 
 The frames of the tiles are read again from the labelled video or images, after scoring: a video
 is decoded from its start up to the last frame needed, and each needed frame is cut into its
@@ -151,8 +152,38 @@ def labelled_images(source: str | os.PathLike, frames: Collection[int]) -> Itera
 # --------------------------------------------------------------------------------------------
 # Contact sheets
 # --------------------------------------------------------------------------------------------
+def _shares(sizes: Sequence[int], limit: int) -> list[int]:
+    """Split ``limit`` among groups of ``sizes`` as evenly as they allow: a small group takes
+    all it has, and what it leaves goes to the others (water-filling)."""
+    shares = [0] * len(sizes)
+    left, open_ = max(0, int(limit)), [i for i, n in enumerate(sizes) if n > 0]
+    while left and open_:
+        each = max(1, left // len(open_))
+        for i in list(open_):
+            take = min(each, sizes[i] - shares[i], left)
+            shares[i] += take
+            left -= take
+            if shares[i] == sizes[i]:
+                open_.remove(i)
+    return shares
+
+
+def _spread(items: Sequence, n: int) -> list:
+    """``n`` of ``items`` evenly spaced, first and last included, in order."""
+    if n >= len(items):
+        return list(items)
+    if n <= 0:
+        return []
+    return [items[int(i)] for i in np.round(np.linspace(0, len(items) - 1, n))]
+
+
 def select_failures(failures: Sequence[tuple[int, Failure]], limit: int = MAX_TILES) -> list[tuple[int, Failure]]:
-    """The failures a sheet shows: misses first, then false positives, then loose matches, at most ``limit``.
+    """The failures a sheet shows, at most ``limit``.
+
+    Misses and false positives share the limit evenly (one that has fewer leaves the rest to
+    the other); loose matches get what both leave. Within a kind, the failures shown are
+    spread evenly over the run (files in order, frames in order), so a long run of the same
+    miss does not fill the sheet.
 
     Parameters
     ----------
@@ -166,9 +197,10 @@ def select_failures(failures: Sequence[tuple[int, Failure]], limit: int = MAX_TI
     list of (int, Failure)
         Ordered by kind (:data:`~vehicle_detection.evaluate.FAILURE_KINDS`), then file, then frame.
     """
-    rank = {k: i for i, k in enumerate(FAILURE_KINDS)}
-    ordered = sorted(failures, key=lambda p: (rank.get(p[1].kind, len(rank)), p[0], p[1].frame))
-    return ordered[: max(0, int(limit))]
+    groups = [sorted((p for p in failures if p[1].kind == k), key=lambda p: (p[0], p[1].frame)) for k in FAILURE_KINDS]
+    shares = _shares([len(g) for g in groups[:2]], limit)
+    shares.append(min(len(groups[2]), max(0, int(limit)) - sum(shares)))
+    return [p for group, n in zip(groups, shares) for p in _spread(group, n)]
 
 
 def _tile_title(item: ReportSource, frame: int) -> str:
@@ -192,12 +224,13 @@ def _tiles_of(item: ReportSource, failures: Sequence[Failure]) -> Iterator[tuple
 
 def _sheet_header(camera: str, failures: Sequence[tuple[int, Failure]], shown: int, limit: int) -> tuple[str, str]:
     count = {k: sum(f.kind == k for _, f in failures) for k in FAILURE_KINDS}
-    title = (f"camera {camera}: {count['miss']} missed, {count['false positive']} false positives, "
+    fps = count["false positive"]
+    title = (f"camera {camera}: {count['miss']} missed, {fps} false positive{'' if fps == 1 else 's'}, "
              f"{count['loose']} loose (IoU 0.5 to 0.7)")
     if not failures:
         return title, "no failures"
     if shown < len(failures):
-        return title, f"{shown} of {len(failures)} shown, {len(failures) - shown} left out (at most {limit}; misses and false positives first)"
+        return title, f"{shown} of {len(failures)} shown, {len(failures) - shown} left out (at most {limit}: misses and false positives first, spread over the run)"
     return title, f"all {len(failures)} shown"
 
 
