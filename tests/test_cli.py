@@ -89,7 +89,7 @@ OPTIONS = {
     "sweep": ["--data-dir", "--color-spaces", "--hog-channels", "--orientations", "--pixels-per-cell",
               "--cells-per-block", "--color-features", "--subsample", "--jobs", "--json", "--debug"],
     "detect": ["input", "--out", "--boxes", "--model", "--overwrite", "--no-progress", "--debug"],
-    "evaluate": ["--video", "--labels", "--model", "--json", "--no-progress", "--debug"],
+    "evaluate": ["--video", "--labels", "--model", "--json", "--report", "--overwrite", "--no-progress", "--debug"],
     "mine-negatives": ["INPUT", "--labels", "--out", "--name", "--model", "--frames", "--every", "--threshold",
                        "--negative-region", "--max-gap", "--max-iou", "--max-car-cover", "--dedupe-iou", "--dedupe-frames",
                        "--overwrite", "--json", "--no-progress", "--debug"],
@@ -469,3 +469,128 @@ def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
     assert scores["recall"] == pytest.approx(n_found / (n_found + 1))
     p, r = scores["precision"], scores["recall"]
     assert scores["f1"] == pytest.approx(2 * p * r / (p + r))
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluate: cameras and --report
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def scored_case(tmp_path):
+    """Two labelled images of camera "dash" and a boxes CSV with one miss and two false positives."""
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    for name in ("test1.jpg", "test4.jpg"):
+        shutil.copy(TEST_IMAGES / name, imgs / name)
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"video": "imgs", "camera": "dash", "frames": {
+        "0": {"cars": [[810, 410, 950, 500]], "ignore": [[0, 380, 640, 480]], "file": "test1.jpg"},
+        "1": {"cars": [[1040, 400, 1260, 520]], "ignore": [], "file": "test4.jpg"},
+    }}))  # fmt: skip
+    boxes = tmp_path / "b.csv"
+    boxes.write_text(
+        BOXES_CSV_HEADER + "\n"
+        "0,810,410,950,500,-1,1.0\n"  # the car of image 0: a match (IoU 1)
+        "0,300,100,400,200,-1,1.0\n"  # the sky: a false positive
+        "0,100,400,200,460,-1,1.0\n"  # inside the ignore region: not a failure
+        "1,200,450,300,550,-1,1.0\n"  # the road of image 1: a false positive; its car is missed
+    )
+    return labels, boxes
+
+
+def _report_args(labels, boxes, report, *more):
+    return ["evaluate", "--labels", str(labels), "--boxes", str(boxes), "--report", str(report), "--no-progress", *more]
+
+
+@needs_media
+def test_evaluate_report_writes_the_sheet_and_the_tables(scored_case, tmp_path, capsys):
+    labels, boxes = scored_case
+    report = tmp_path / "rep"
+    assert main(_report_args(labels, boxes, report, "--json")) == 0
+    out = capsys.readouterr().out
+    assert f"report: {report / 'failures_dash.png'} (3 tiles, 0 left out)" in out
+    assert sorted(p.name for p in report.iterdir()) == ["cameras.csv", "cameras.md", "failures_dash.png"]
+    sheet = np.array(Image.open(report / "failures_dash.png").convert("RGB"))
+    # 3 tiles of 256 x (192 + 38) px in one row, 4 px apart, under a 62 px header.
+    assert sheet.shape == (62 + 4 + 230 + 4, 4 + 3 * 260, 3)
+    from vehicle_detection.drawing import KIND_COLORS, LABEL_COLOR, REPORTED_COLOR
+
+    def has(color):
+        return bool((sheet == color).all(axis=-1).any())
+
+    assert has(KIND_COLORS["miss"]) and has(KIND_COLORS["false positive"]) and not has(KIND_COLORS["loose"])
+    assert has(LABEL_COLOR) and has(REPORTED_COLOR)
+    rows = (report / "cameras.csv").read_text().splitlines()
+    assert len(rows) == 2 and rows[0].startswith("camera,files,frames,cars,tp_50,fp_50,fn_50,precision_50,")
+    row = dict(zip(rows[0].split(","), rows[1].split(",")))
+    assert (row["camera"], row["files"], row["frames"], row["cars"]) == ("dash", "1", "2", "2")
+    assert (row["tp_50"], row["fp_50"], row["fn_50"], row["precision_50"], row["recall_50"]) == ("1", "2", "1", "0.3333", "0.5000")
+    assert row["mean_iou_50"] == "1.0000" and row["fp_per_frame"] == "1.0000"
+    assert "| dash | 1 | 2 | 2 | 1 | 2 | 1 | 0.3333 | 0.5000 |" in (report / "cameras.md").read_text()
+    doc = last_json(out)
+    assert list(doc["cameras"]) == ["dash"]
+    cam = doc["cameras"]["dash"]
+    assert (cam["tp"], cam["fp"], cam["fn"], cam["n_cars"], cam["labels"]) == (1, 2, 1, 2, [str(labels)])
+    assert cam["at_iou_0.7"]["tp"] == 1 and cam["mean_iou"] == 1.0
+    assert {k: v for k, v in cam.items() if k not in ("n_cars", "labels")} == {k: v for k, v in doc.items() if k not in ("files", "cameras")}
+    assert doc["files"][str(labels)]["camera"] == "dash"
+
+
+@needs_media
+def test_evaluate_report_prints_the_same_figures(scored_case, tmp_path, capsys):
+    labels, boxes = scored_case
+    assert main(["evaluate", "--labels", str(labels), "--boxes", str(boxes), "--json"]) == 0
+    plain = capsys.readouterr().out.splitlines()
+    assert main(_report_args(labels, boxes, tmp_path / "rep", "--json")) == 0
+    with_report = capsys.readouterr().out.splitlines()
+
+    def figures(lines):
+        return [line for line in lines if not line.startswith(("scored in", "report: "))]
+
+    assert figures(with_report) == figures(plain)
+
+
+@needs_media
+def test_evaluate_report_refuses_a_folder_with_files(scored_case, tmp_path, capsys):
+    labels, boxes = scored_case
+    report = tmp_path / "rep"
+    report.mkdir()
+    (report / "notes.txt").write_text("mine\n")
+    assert main(_report_args(labels, boxes, report)) == 5
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"{ERROR_PREFIX}{report}: report folder exists and is not empty; pass --overwrite (overwrite=True) to replace its files"]
+    assert [p.name for p in report.iterdir()] == ["notes.txt"]
+    # A file where the folder should be: refused too, with or without --overwrite.
+    assert main(_report_args(labels, boxes, report / "notes.txt", "--overwrite")) == 5
+    assert (report / "notes.txt").read_text() == "mine\n"
+    # --overwrite writes beside the other files; again, it replaces its own.
+    assert main(_report_args(labels, boxes, report, "--overwrite")) == 0
+    first = (report / "failures_dash.png").stat().st_ino
+    assert main(_report_args(labels, boxes, report)) == 5
+    assert main(_report_args(labels, boxes, report, "--overwrite")) == 0
+    assert (report / "failures_dash.png").stat().st_ino != first
+    assert sorted(p.name for p in report.iterdir()) == ["cameras.csv", "cameras.md", "failures_dash.png", "notes.txt"]
+
+
+@needs_media
+def test_evaluate_pools_files_of_one_camera(tmp_path, capsys):
+    """Two labels files of one camera and one of another (the detector runs: one image each)."""
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    shutil.copy(TEST_IMAGES / "test1.jpg", imgs / "test1.jpg")
+    paths = []
+    for name, camera in (("a.json", "front"), ("b.json", "front"), ("c.json", None)):
+        doc = {"video": "imgs", "frames": {"0": {"cars": [[810, 410, 950, 500]], "ignore": []}}}
+        paths.append(tmp_path / name)
+        paths[-1].write_text(json.dumps(doc | ({"camera": camera} if camera else {})))
+    assert main(["evaluate", "--labels", *map(str, paths), "--json", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    doc = last_json(out)
+    assert list(doc["cameras"]) == ["front", "1280x720"]  # c.json: named by its image size
+    front, other = doc["cameras"]["front"], doc["cameras"]["1280x720"]
+    assert front["labels"] == [str(paths[0]), str(paths[1])] and other["labels"] == [str(paths[2])]
+    assert front["n_frames"] == 2 and other["n_frames"] == 1
+    assert front["tp"] == 2 * other["tp"] and front["fp"] == 2 * other["fp"]  # the same image twice
+    assert "camera front: 2 frames, 2 cars" in out and "camera 1280x720: 1 frames, 1 cars" in out
+    assert out.index("camera front:") < out.index("all: 3 frames, 3 cars")

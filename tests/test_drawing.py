@@ -86,3 +86,31 @@ def test_draw_detections_labels_tracked_boxes_only():
     assert np.array_equal(untracked, draw_boxes(image, box, thickness=4))
     assert np.array_equal(tracked, draw_boxes(image, box, thickness=4, labels=["car 7"]))
     assert not np.array_equal(tracked, untracked)
+
+
+def test_context_region_stays_in_the_frame_at_the_aspect_ratio():
+    from vehicle_detection.drawing import context_region
+
+    r = context_region([[600, 300, 700, 380]], (720, 1280, 3))
+    assert r[0] < 600 and r[1] < 300 and r[2] > 700 and r[3] > 380
+    assert (r[2] - r[0]) / (r[3] - r[1]) == pytest.approx(4 / 3, abs=0.02)
+    r = context_region([[1250, 690, 1280, 720]], (720, 1280, 3))  # a corner: shifted inside
+    assert r[2] == 1280 and r[3] == 720 and r[0] >= 0 and r[1] >= 0 and r[3] - r[1] >= 96
+    r = context_region([[0, 0, 1280, 720]], (720, 1280, 3))  # bigger than the frame: the frame
+    assert r.tolist() == [0, 0, 1280, 720]
+
+
+def test_failure_tile_and_sheet_shapes():
+    from vehicle_detection.drawing import IGNORE_COLOR, LABEL_COLOR, REPORTED_COLOR, failure_sheet, failure_tile
+    from vehicle_detection.evaluate import Failure
+
+    frame = _image(h=720, w=1280, value=90)
+    miss = Failure(0, "miss", np.array([600.0, 300, 700, 380]), 0.2, np.array([640.0, 300, 740, 380]))
+    tile = failure_tile(frame, miss, [[600, 300, 700, 380]], [[0, 280, 640, 480]], [[640, 300, 740, 380]], "f.json frame 0")
+    assert tile.shape == (192 + 38, 256, 3) and tile.dtype == np.uint8
+    for color in (LABEL_COLOR, REPORTED_COLOR, IGNORE_COLOR):
+        assert (tile == color).all(axis=-1).any(), color
+    sheet = failure_sheet([tile] * 7, "title", "note", ncols=3)
+    assert sheet.shape == (62 + 4 + 3 * (230 + 4), max(640, 4 + 3 * 260), 3)
+    with pytest.raises(ValueError, match="one shape"):
+        failure_sheet([tile, tile[:-1]], "t")

@@ -21,8 +21,13 @@ from vehicle_detection.geometry import box_iou
 from vehicle_detection.evaluate import (
     Annotations,
     average_precision,
+    camera_name,
     evaluation_report,
+    find_failures,
     FrameLabels,
+    frame_failures,
+    pool_by_camera,
+    pool_reports,
     Scores,
     evaluate_detections,
     load_annotations,
@@ -497,3 +502,147 @@ def test_labels_with_ids_and_files(tmp_path):
         path.write_text(json.dumps({"frames": {"0": frame}}))
         with pytest.raises(InputError, match=fragment):
             load_annotations(path)
+
+
+# --------------------------------------------------------------------------------------------
+# Cameras: the "camera" key and per-camera pooling
+# --------------------------------------------------------------------------------------------
+def test_labels_camera_key(tmp_path):
+    path = _write(tmp_path, json.dumps({"camera": "highway_dashcam", "frames": {"0": GOOD_FRAME}}))
+    assert load_annotations(path).camera == "highway_dashcam"
+    assert load_annotations(_write(tmp_path, _doc({"0": GOOD_FRAME}))).camera is None
+    for bad in ("", "a/b", "../x", ".hidden", "x" * 65, 3, ["a"]):
+        path = _write(tmp_path, json.dumps({"camera": bad, "frames": {"0": GOOD_FRAME}}))
+        with pytest.raises(InputError, match="'camera' must be a short name"):
+            load_annotations(path)
+
+
+def test_camera_name_falls_back_to_the_frame_size():
+    assert camera_name(Annotations(None, {}, camera="project"), (640, 480)) == "project"
+    assert camera_name(Annotations(None, {}), (1280, 720)) == "1280x720"
+    assert camera_name(Annotations(None, {}), None) == "unknown"
+
+
+SQUARE = [0, 0, 100, 100]  # 100 x 100 = 10,000 px
+
+
+def _camera_files():
+    """Three labels files, two of camera "a" and one of "b", with outcomes worked out by hand."""
+    a1 = Annotations(None, {0: FrameLabels(cars=[SQUARE]), 1: FrameLabels(cars=[SQUARE])})
+    a1_dets = Detections([SQUARE,  # frame 0: IoU 1
+                          [0, 0, 100, 60],  # frame 1: 6,000 / 10,000 = IoU 0.6
+                          [500, 500, 550, 550]],  # frame 1: nowhere near a car
+                         frame=[0, 1, 1])
+    a2 = Annotations(None, {7: FrameLabels(cars=[SQUARE])})  # nothing reported: a miss
+    b = Annotations(None, {0: FrameLabels(cars=[SQUARE])})
+    b_dets = Detections([[0, 0, 100, 80]], frame=[0])  # IoU 0.8
+    return {"a1.json": evaluation_report(a1_dets, a1), "a2.json": evaluation_report(Detections.empty(), a2),
+            "b.json": evaluation_report(b_dets, b)}
+
+
+def test_pool_by_camera_by_hand():
+    reports = _camera_files()
+    pooled = pool_by_camera(reports, {"a1.json": "a", "a2.json": "a", "b.json": "b"})
+    assert list(pooled) == ["a", "b"]
+    a, b = pooled["a"], pooled["b"]
+    assert a["labels"] == ["a1.json", "a2.json"] and b["labels"] == ["b.json"]
+    assert (a["n_frames"], a["n_cars"], b["n_frames"], b["n_cars"]) == (3, 3, 1, 1)
+    # Camera a at IoU 0.5: frame 0 TP (IoU 1), frame 1 TP (IoU 0.6) + FP, file a2 one miss.
+    s = a["at_iou_0.5"]
+    assert (s["tp"], s["fp"], s["fn"], s["n_frames"]) == (2, 1, 1, 3)
+    assert s["precision"] == pytest.approx(2 / 3) and s["recall"] == pytest.approx(2 / 3) and s["f1"] == pytest.approx(2 / 3)
+    assert s["mean_iou"] == pytest.approx((1.0 + 0.6) / 2) and s["fp_per_frame"] == pytest.approx(1 / 3)
+    # At IoU 0.7 the 0.6 box no longer matches: one more FP and one more miss.
+    s = a["at_iou_0.7"]
+    assert (s["tp"], s["fp"], s["fn"]) == (1, 2, 2)
+    assert s["precision"] == pytest.approx(1 / 3) and s["recall"] == pytest.approx(1 / 3) and s["mean_iou"] == 1.0
+    for key in ("at_iou_0.5", "at_iou_0.7"):  # camera b: one car, found at IoU 0.8
+        s = b[key]
+        assert (s["tp"], s["fp"], s["fn"], s["f1"]) == (1, 0, 0, 1.0) and s["mean_iou"] == pytest.approx(0.8)
+
+
+def test_pool_reports_of_every_file_is_the_sum_of_the_cameras():
+    reports = _camera_files()
+    everything = pool_reports(reports.values())
+    s = everything["at_iou_0.5"]
+    assert (everything["n_frames"], everything["n_cars"]) == (4, 4)
+    assert (s["tp"], s["fp"], s["fn"]) == (3, 1, 1) and s["mean_iou"] == pytest.approx((1.0 + 0.6 + 0.8) / 3)
+    # One camera for every file: the same figures.
+    one = pool_by_camera(reports, dict.fromkeys(reports, "c"))["c"]
+    assert {k: v for k, v in one.items() if k != "labels"} == everything
+
+
+# --------------------------------------------------------------------------------------------
+# Failures
+# --------------------------------------------------------------------------------------------
+def test_frame_failures_by_hand():
+    labels = FrameLabels(cars=[SQUARE, [200, 0, 300, 100], [400, 0, 500, 100]], ignore=[[0, 300, 600, 400]])
+    dets = [
+        [400, 0, 500, 100],  # car 2 exactly: a good match, not a failure
+        [0, 0, 100, 60],  # car 0, IoU 0.6: loose
+        [200, 0, 300, 40],  # car 1, IoU 0.4: no match, so car 1 is missed and this is a FP
+        [100, 310, 200, 390],  # inside the ignore region: neither
+        [700, 700, 720, 720],  # far from everything: FP, best IoU 0
+    ]
+    got = frame_failures(dets, labels, frame=5)
+    assert [(f.frame, f.kind) for f in got] == [(5, "miss"), (5, "false positive"), (5, "false positive"), (5, "loose")]
+    miss, fp_near, fp_far, loose = got
+    assert miss.box.tolist() == [200, 0, 300, 100] and miss.iou == pytest.approx(0.4)
+    assert miss.partner.tolist() == [200, 0, 300, 40]
+    assert fp_near.box.tolist() == [200, 0, 300, 40] and fp_near.iou == pytest.approx(0.4)
+    assert fp_far.iou == 0.0 and fp_far.partner is None
+    assert loose.box.tolist() == SQUARE and loose.iou == pytest.approx(0.6) and loose.partner.tolist() == [0, 0, 100, 60]
+    # With a lower loose threshold the 0.6 match is fine.
+    assert [f.kind for f in frame_failures(dets, labels, loose_below=0.55)] == ["miss", "false positive", "false positive"]
+
+
+def test_find_failures_over_frames():
+    ann = Annotations(None, {0: FrameLabels(cars=[SQUARE]), 4: FrameLabels(cars=[SQUARE]), 9: FrameLabels(cars=[])})
+    dets = Detections([SQUARE, [0, 0, 100, 65], [0, 0, 10, 10]], frame=[0, 4, 8])  # frame 8 is not labelled
+    assert [(f.frame, f.kind) for f in find_failures(dets, ann)] == [(4, "loose")]
+    assert [(f.frame, f.kind) for f in find_failures(Detections.empty(), ann)] == [(0, "miss"), (4, "miss")]
+
+
+# --------------------------------------------------------------------------------------------
+# The report folder (vehicle_detection.reporting)
+# --------------------------------------------------------------------------------------------
+def test_select_failures_puts_misses_and_false_positives_first():
+    from vehicle_detection.evaluate import Failure
+    from vehicle_detection.reporting import select_failures
+
+    box = np.array(SQUARE, float)
+    items = [(1, Failure(3, "loose", box, 0.6)), (0, Failure(9, "false positive", box, 0.0)),
+             (1, Failure(2, "miss", box, 0.1)), (0, Failure(4, "miss", box, 0.0))]
+    got = [(k, f.frame, f.kind) for k, f in select_failures(items, 3)]
+    assert got == [(0, 4, "miss"), (1, 2, "miss"), (0, 9, "false positive")]
+    assert select_failures(items, 0) == []
+    # 100 misses and one false positive, at most 60: the false positive is kept, and the 59
+    # misses are spread from the first frame to the last.
+    many = [(0, Failure(f, "miss", box, 0.0)) for f in range(100)] + [(0, Failure(50, "false positive", box, 0.0))]
+    got = select_failures(many, 60)
+    frames = [f.frame for _, f in got if f.kind == "miss"]
+    assert len(got) == 60 and [f.kind for _, f in got].count("false positive") == 1
+    assert frames[0] == 0 and frames[-1] == 99 and len(set(frames)) == 59 and frames == sorted(frames)
+    # Misses and false positives share the limit evenly; loose matches get what is left.
+    mixed = [(0, Failure(f, k, box, 0.0)) for k in ("miss", "false positive", "loose") for f in range(10)]
+    assert [f.kind for _, f in select_failures(mixed, 8)] == ["miss"] * 4 + ["false positive"] * 4
+    assert [f.kind for _, f in select_failures(mixed, 25)].count("loose") == 5
+
+
+def test_camera_sheet_caps_the_tiles(tmp_path):
+    from vehicle_detection.images import write_image
+    from vehicle_detection.reporting import ReportSource, camera_sheet
+
+    folder = tmp_path / "imgs"
+    for i in range(3):
+        write_image(folder / f"f{i}.png", np.full((240, 320, 3), 60 * i, np.uint8))
+    ann = Annotations("imgs", {i: FrameLabels(cars=[[10, 10, 60, 50]]) for i in range(3)}, path=tmp_path / "l.json")
+    dets = Detections([[200, 100, 260, 160]], frame=[1])  # frame 1: a FP; every frame: a miss
+    item = ReportSource(ann, dets, folder, "cam")
+    sheet, counts = camera_sheet("cam", [item], limit=2)
+    assert counts == {"miss": 3, "false positive": 1, "loose": 0, "shown": 2, "left_out": 2}
+    assert sheet.dtype == np.uint8 and sheet.shape == (62 + 4 + 230 + 4, 640, 3)  # 2 tiles: the header's width
+    sheet, counts = camera_sheet("cam", [item])
+    assert counts["shown"] == 4 and counts["left_out"] == 0 and sheet.shape[1] == 4 + 4 * 260
+    sheet, counts = camera_sheet("cam", [ReportSource(ann, Detections([[10, 10, 60, 50]] * 3, frame=[0, 1, 2]), folder, "cam")])
+    assert counts["shown"] == 0 and sheet.shape[0] == 62 + 4  # no failures: the header alone

@@ -58,6 +58,7 @@ def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
     for labels in ("clip_A", "clip_A_tracks"):
         doc = json.loads((DEV_SET / f"{labels}.json").read_text())
         doc["video"] = video.name
+        doc["camera"] = name  # evaluate pools (and --report names) the files by camera
         for entry in doc["frames"].values():
             cars, ids = [], []
             ignore = [b for b, share in (_move(b, crop, size) for b in entry.get("ignore", [])) if share > 0]

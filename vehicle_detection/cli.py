@@ -252,6 +252,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="undistort every frame with this camera file before the search (the boxes are mapped back to the "
                    "original frames, where the labels are, before scoring)")
     p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="write into DIR (created) cameras.md and cameras.csv, the scores of each camera, and per camera a "
+                   "contact sheet failures_<camera>.png of every miss, false positive and loose match (at most 60 tiles)")
+    p.add_argument("--overwrite", action="store_true", help="write into a --report folder that is not empty (replacing its files of the same names)")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
 
@@ -783,8 +787,28 @@ def _print_report(name: str, r: dict) -> None:
         print(f"  tracking: MOTA {t['mota']:.3f}  IDF1 {t['idf1']:.3f}  HOTA {t['hota']:.3f}  (DetA {t['deta']:.3f}, AssA {t['assa']:.3f}, id switches {t['id_switches']})")
 
 
+def _evaluate_sources(args, all_labels) -> dict[str, Path | None]:
+    """The video or image folder of each labels file (``--video`` or the one it names)."""
+    sources = {}
+    for labels in all_labels:
+        source = sources[str(labels.path)] = Path(args.video) if args.video else labels.source
+        if source is None and not args.boxes:
+            raise InputError(f"{labels.path}: the labels name no video; give --video")
+        if source is None and args.report:
+            raise InputError(f"{labels.path}: the labels name no video (key 'video'); --report reads the labelled frames from it")
+        if args.report and not source.exists():
+            raise InputError(f"{labels.path}: {source} not found; --report reads the labelled frames from it")
+    return sources
+
+
+def _json_scores(pooled: dict) -> dict:
+    """Pooled scores as the top level of ``evaluate --json`` lays them out: IoU 0.5 flat, 0.7 nested."""
+    return {**pooled["at_iou_0.5"], "iou_threshold": 0.5, "at_iou_0.7": pooled["at_iou_0.7"]}
+
+
 def _cmd_evaluate(args) -> int:
-    from .evaluate import Scores, evaluation_report, load_annotations
+    from .evaluate import evaluation_report, load_annotations, pool_by_camera, pool_reports
+    from .reporting import ReportSource, check_report_dir, labels_camera
     from .tables import read_boxes_csv
 
     all_labels = [load_annotations(p) for p in args.labels]
@@ -795,36 +819,60 @@ def _cmd_evaluate(args) -> int:
         raise UsageError("--boxes scores one CSV against one labels file")
     if args.video and len(all_labels) > 1:
         raise UsageError("--video applies to one labels file; with several, each names its own video")
-    detector = None if args.boxes else _load_detector(args.model, args.horizon)
     if args.camera and args.boxes:
         raise UsageError("--camera applies when the detector runs, not to --boxes")
+    sources = _evaluate_sources(args, all_labels)
+    if args.report:
+        check_report_dir(args.report, overwrite=args.overwrite)
+    detector = None if args.boxes else _load_detector(args.model, args.horizon)
     camera = _load_camera(args.camera)
     t = time.perf_counter()
-    reports = {}
+    reports, items = {}, []
     for labels in all_labels:
+        name, source = str(labels.path), sources[str(labels.path)]
         if args.boxes:
             found, fps = read_boxes_csv(args.boxes), None
         else:
-            source = Path(args.video) if args.video else labels.source
-            if source is None:
-                raise InputError(f"{labels.path}: the labels name no video; give --video")
             found, fps = _detect_for_labels(labels, source, detector, progress=not args.no_progress, camera=camera)
-        reports[str(labels.path)] = evaluation_report(found, labels, fps=fps)
-        _print_report(str(labels.path), reports[str(labels.path)])
-    pooled = {}
-    for key in ("at_iou_0.5", "at_iou_0.7"):
-        fields = ("tp", "fp", "fn", "ignored", "n_frames")
-        total = {f: sum(r[key][f] for r in reports.values()) for f in fields}
-        iou_sum = sum(r[key]["mean_iou"] * r[key]["tp"] for r in reports.values())
-        pooled[key] = Scores(**total, iou_sum=iou_sum).as_dict()
-    if len(reports) > 1:
-        _print_report("all", {"n_frames": pooled["at_iou_0.5"]["n_frames"], "n_cars": sum(r["n_cars"] for r in reports.values()), **pooled})
+        reports[name] = evaluation_report(found, labels, fps=fps)
+        _print_report(name, reports[name])
+        items.append(ReportSource(labels, found, source, labels_camera(labels, source)))
+    cameras = {str(it.annotations.path): it.camera for it in items}
+    by_camera = pool_by_camera(reports, cameras)
+    pooled = pool_reports(reports.values())
+    _print_pooled(by_camera, pooled, len(reports))
     print(f"scored in {time.perf_counter() - t:.1f} s")
+    if args.report:
+        _write_evaluate_report(args, items, by_camera, pooled, sources)
     if args.json:
-        out = dict(pooled["at_iou_0.5"])
-        out.update(iou_threshold=0.5, **{"at_iou_0.7": pooled["at_iou_0.7"], "files": reports})
-        print(json.dumps(out))
+        print(json.dumps(_evaluate_json(reports, cameras, by_camera, pooled)))
     return 0
+
+
+def _print_pooled(by_camera: dict, pooled: dict, n_files: int) -> None:
+    """A block per camera (when a camera has several files, or there are several cameras), then "all"."""
+    if len(by_camera) > 1 or n_files > len(by_camera):
+        for cam, p in by_camera.items():
+            _print_report(f"camera {cam}", {k: v for k, v in p.items() if k != "labels"})
+    if n_files > 1:
+        _print_report("all", pooled)
+
+
+def _write_evaluate_report(args, items, by_camera: dict, pooled: dict, sources: dict) -> None:
+    from .reporting import write_evaluation_report
+
+    inputs = [*args.labels, *(s for s in sources.values() if s is not None), *filter(None, [args.boxes, args.model, args.camera])]
+    written = write_evaluation_report(args.report, items, by_camera, pooled, overwrite=args.overwrite, inputs=inputs)
+    for file, counts in written.items():
+        extra = f" ({counts['shown']} tiles, {counts['left_out']} left out)" if counts else ""
+        print(f"report: {Path(args.report) / file}{extra}")
+
+
+def _evaluate_json(reports: dict, cameras: dict, by_camera: dict, pooled: dict) -> dict:
+    """``evaluate --json``: the pooled scores, ``files`` (each with its ``camera``) and ``cameras``."""
+    files = {name: {**r, "camera": cameras[name]} for name, r in reports.items()}
+    per_camera = {cam: {**_json_scores(p), "n_cars": p["n_cars"], "labels": p["labels"]} for cam, p in by_camera.items()}
+    return {**_json_scores(pooled), "files": files, "cameras": per_camera}
 
 
 def _frame_ranges(text: str) -> set[int]:

@@ -49,11 +49,20 @@ __all__ = [
     "average_precision",
     "tracking_frames",
     "evaluation_report",
+    "camera_name",
+    "pool_reports",
+    "pool_by_camera",
+    "Failure",
+    "FAILURE_KINDS",
+    "frame_failures",
+    "find_failures",
 ]
 
 _FRAME_KEY = re.compile(r"0|[1-9][0-9]*", re.ASCII)
 _BOX_FIELDS = ("cars", "ignore")
 _FRAME_FIELDS = ("cars", "ignore", "ids", "file")
+#: What a camera name may be: it names a file (``failures_<camera>.png``).
+_CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}", re.ASCII)
 
 
 def _frozen_int_boxes(boxes: ArrayLike, name: str) -> np.ndarray:
@@ -126,11 +135,16 @@ class Annotations:
         Labels by 0-based decoded frame index, in increasing frame order.
     path : Path, optional
         The annotation file, when read from one; ``video`` is relative to its folder.
+    camera : str, optional
+        The camera that filmed the frames (the file's ``camera`` key): a short name of letters,
+        digits, ``.``, ``_`` and ``-``. Files of the same camera are pooled together by
+        :func:`pool_by_camera`; see :func:`camera_name` for files without one.
     """
 
     video: str | None
     frames: dict[int, FrameLabels]
     path: Path | None = None
+    camera: str | None = None
 
     @property
     def source(self) -> Path | None:
@@ -227,7 +241,9 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
         ``file`` (optional, the image file of a folder's frame); and optionally ``video``
         (string or null: the video or image folder, relative to the JSON file). Other top-level
         keys (e.g. ``format``) are allowed and ignored; other keys inside a frame are refused, so
-        that a misspelt ``"ignroe"`` cannot silently drop labels.
+        that a misspelt ``"ignroe"`` cannot silently drop labels. An optional ``camera`` (a
+        short name: 1 to 64 letters, digits, ``.``, ``_`` or ``-``, starting with a letter or
+        digit) says which camera filmed the frames.
 
     Returns
     -------
@@ -259,6 +275,12 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
     video = doc.get("video")
     if video is not None and not isinstance(video, str):
         raise InputError(f"{path}: 'video' must be a string or null")
+    camera = doc.get("camera")
+    if camera is not None and (not isinstance(camera, str) or not _CAMERA_NAME.fullmatch(camera)):
+        raise InputError(
+            f"{path}: 'camera' must be a short name (1 to 64 letters, digits, '.', '_' or '-', starting "
+            f"with a letter or digit); got {json.dumps(camera)}"
+        )
     raw_frames = doc["frames"]
     if not isinstance(raw_frames, dict):
         raise InputError(f"{path}: 'frames' must be an object mapping frame indices to labels")
@@ -273,7 +295,7 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
         if len(key) > 10 or int(key) > MAX_COORD:
             raise InputError(f"{path}: frame key {key} is beyond the largest frame index {MAX_COORD}")
         frames[int(key)] = _parse_frame(key, value, path)
-    return Annotations(video=video, frames=dict(sorted(frames.items())), path=path)
+    return Annotations(video=video, frames=dict(sorted(frames.items())), path=path, camera=camera)
 
 
 # --------------------------------------------------------------------------------------------
@@ -654,3 +676,218 @@ def evaluation_report(detections: Detections, annotations: Annotations, *, fps: 
     if annotations.tracked and detections.track_id is not None:
         report["tracking"] = tracking_scores(tracking_frames(detections, annotations)).as_dict()
     return report
+
+
+# --------------------------------------------------------------------------------------------
+# Cameras: several labels files pooled
+# --------------------------------------------------------------------------------------------
+#: The pooled figures of :func:`pool_reports`, at each IoU threshold.
+POOLED_THRESHOLDS = ("at_iou_0.5", "at_iou_0.7")
+
+
+def camera_name(annotations: Annotations, frame_size: tuple[int, int] | None) -> str:
+    """The camera a labels file is pooled under.
+
+    Parameters
+    ----------
+    annotations : Annotations
+    frame_size : (int, int) or None
+        ``(width, height)`` in pixels of the labelled video or images, if known.
+
+    Returns
+    -------
+    str
+        The file's ``camera`` key; else the frame size as ``"WIDTHxHEIGHT"`` (``"1280x720"``);
+        else ``"unknown"``.
+
+    Examples
+    --------
+    >>> camera_name(Annotations(None, {}), (1280, 720))
+    '1280x720'
+    >>> camera_name(Annotations(None, {}, camera="highway"), (1280, 720))
+    'highway'
+    """
+    if annotations.camera:
+        return annotations.camera
+    if frame_size is None:
+        return "unknown"
+    return f"{int(frame_size[0])}x{int(frame_size[1])}"
+
+
+def pool_reports(reports: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """Several files' :func:`evaluation_report` dicts pooled into one: counts summed, rates recomputed.
+
+    Parameters
+    ----------
+    reports : iterable of mapping
+        Each with ``n_cars`` and ``at_iou_0.5`` / ``at_iou_0.7`` (``tp``, ``fp``, ``fn``,
+        ``ignored``, ``n_frames`` and ``mean_iou``).
+
+    Returns
+    -------
+    dict
+        ``n_frames``, ``n_cars``, and ``at_iou_0.5`` / ``at_iou_0.7``: :meth:`Scores.as_dict`
+        of the summed counts, the matched IoUs summed as ``mean_iou * tp`` of each file (so the
+        mean IoU is that of every matched box of every file). Empty input gives zero counts.
+    """
+    reports = list(reports)
+    pooled: dict[str, Any] = {}
+    for key in POOLED_THRESHOLDS:
+        total = {f: sum(int(r[key][f]) for r in reports) for f in ("tp", "fp", "fn", "ignored", "n_frames")}
+        iou_sum = sum(r[key]["mean_iou"] * r[key]["tp"] for r in reports)
+        pooled[key] = Scores(**total, iou_sum=iou_sum).as_dict()
+    return {
+        "n_frames": pooled["at_iou_0.5"]["n_frames"],
+        "n_cars": sum(int(r["n_cars"]) for r in reports),
+        **pooled,
+    }
+
+
+def pool_by_camera(reports: Mapping[str, Mapping[str, Any]], cameras: Mapping[str, str]) -> dict[str, dict[str, Any]]:
+    """Each camera's files pooled (:func:`pool_reports`).
+
+    Parameters
+    ----------
+    reports : mapping of str to mapping
+        :func:`evaluation_report` dicts by labels file name.
+    cameras : mapping of str to str
+        The camera of each labels file name (:func:`camera_name`).
+
+    Returns
+    -------
+    dict of str to dict
+        By camera, in the order the cameras first appear in ``reports``: the pooled figures and
+        ``labels``, the list of the camera's labels file names.
+
+    Raises
+    ------
+    KeyError
+        If a file of ``reports`` has no camera.
+    """
+    names: dict[str, list[str]] = {}
+    for name in reports:
+        names.setdefault(cameras[name], []).append(name)
+    return {cam: {**pool_reports(reports[n] for n in files), "labels": files} for cam, files in names.items()}
+
+
+# --------------------------------------------------------------------------------------------
+# Failures: what a contact sheet shows
+# --------------------------------------------------------------------------------------------
+#: The kinds of :class:`Failure`, most serious first.
+FAILURE_KINDS = ("miss", "false positive", "loose")
+
+
+@dataclass(frozen=True, eq=False)
+class Failure:
+    """A labelled car missed, a false positive, or a loose match, in one frame.
+
+    Attributes
+    ----------
+    frame : int
+        The 0-based frame index (as in the labels).
+    kind : str
+        ``"miss"`` (a car matched by no reported box at IoU 0.5), ``"false positive"`` (a
+        reported box matched to no car and not mostly inside an ignore box) or ``"loose"``
+        (matched at IoU 0.5 with an IoU below the loose threshold, 0.7).
+    box : ndarray of float64, shape (4,)
+        The labelled car (miss, loose) or the reported box (false positive).
+    iou : float
+        Miss: the car's best IoU with any reported box; false positive: the box's best IoU with
+        any labelled car; loose: the IoU of the matched pair. 0.0 when there is nothing to
+        overlap.
+    partner : ndarray of float64, shape (4,), or None
+        The box ``iou`` was measured against (the matched reported box of a loose match), None
+        when ``iou`` is 0.
+    """
+
+    frame: int
+    kind: str
+    box: np.ndarray
+    iou: float
+    partner: np.ndarray | None = None
+
+
+def _best(iou: np.ndarray, others: np.ndarray) -> tuple[float, np.ndarray | None]:
+    """The largest IoU of one box's row ``(m,)`` and the box ``(4,)`` of ``others`` giving it."""
+    if not iou.size or iou.max() <= 0:
+        return 0.0, None
+    j = int(np.argmax(iou))
+    return float(iou[j]), others[j]
+
+
+def frame_failures(
+    detections: ArrayLike,
+    labels: FrameLabels,
+    frame: int = 0,
+    *,
+    loose_below: float = 0.7,
+    ignore_overlap: float = 0.5,
+) -> list[Failure]:
+    """The misses, false positives and loose matches of one frame, matched at IoU 0.5.
+
+    Parameters
+    ----------
+    detections : array_like, shape (k, 4)
+        The frame's reported boxes.
+    labels : FrameLabels
+    frame : int
+        Stored in each :class:`Failure`.
+    loose_below : float, default 0.7
+        A matched pair with IoU below this is ``"loose"``, in ``(0, 1]``.
+    ignore_overlap : float, default 0.5
+        As for :func:`match_frame`.
+
+    Returns
+    -------
+    list of Failure
+        Misses (in car order), then false positives and loose matches (in detection order).
+    """
+    loose_below = _check_fraction(loose_below, "loose_below")
+    dets = as_boxes(detections, "detections")
+    cars = labels.cars.astype(np.float64)
+    m = match_frame(dets, labels, iou_threshold=0.5, ignore_overlap=ignore_overlap)
+    iou = box_iou(dets, cars) if len(dets) and len(cars) else np.zeros((len(dets), len(cars)))
+    out = [Failure(frame, "miss", cars[c], *_best(iou[:, c], dets)) for c in m.missed.tolist()]
+    out += [Failure(frame, "false positive", dets[d], *_best(iou[d], cars)) for d in m.false_positives.tolist()]
+    out += [
+        Failure(frame, "loose", cars[c], float(v), dets[d])
+        for (d, c), v in zip(m.matches.tolist(), m.match_iou.tolist())
+        if v < loose_below
+    ]
+    return out
+
+
+def find_failures(
+    detections: Detections | Mapping[int, ArrayLike],
+    annotations: Annotations,
+    *,
+    loose_below: float = 0.7,
+    ignore_overlap: float = 0.5,
+) -> list[Failure]:
+    """:func:`frame_failures` of every labelled frame, in frame order.
+
+    Parameters
+    ----------
+    detections : Detections, or mapping of int to array_like of shape (k, 4)
+        As for :func:`evaluate_detections`.
+    annotations : Annotations
+    loose_below, ignore_overlap : float
+        As for :func:`frame_failures`.
+
+    Returns
+    -------
+    list of Failure
+
+    Examples
+    --------
+    >>> ann = Annotations(None, {3: FrameLabels(cars=[[0, 0, 10, 10], [50, 0, 60, 10]])})
+    >>> dets = Detections([[0, 0, 10, 8], [200, 0, 240, 40]], frame=[3, 3])
+    >>> [(f.frame, f.kind, round(f.iou, 2)) for f in find_failures(dets, ann)]
+    [(3, 'miss', 0.0), (3, 'false positive', 0.0)]
+    """
+    by_frame = {f: d.xyxy for f, d in detections.by_frame().items()} if isinstance(detections, Detections) else detections
+    out: list[Failure] = []
+    for frame, labels in annotations.frames.items():
+        dets = as_boxes(by_frame.get(frame, ()), f"detections of frame {frame}")
+        out += frame_failures(dets, labels, frame, loose_below=loose_below, ignore_overlap=ignore_overlap)
+    return out
