@@ -30,7 +30,7 @@ from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
-from .heatmap import add_heat, heat_to_boxes
+from .heatmap import add_heat, heat_to_boxes, split_blobs
 from .images import as_rgb_uint8
 from .overlays import Overlays, active_area, mask_integral, mask_share
 from .search import search
@@ -240,9 +240,13 @@ class Detector:
         cell = self.config.tracker.cell
         h, w = frame_shape[:2]
         heat = np.zeros((h // cell, w // cell), np.float32)
+        return add_heat(heat, *self._heat_boxes(windows), cell=cell)
+
+    def _heat_boxes(self, windows: Detections) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes the windows add heat to, and their weights (as :meth:`Tracker.update` does)."""
         boxes = self._tracker_input(windows)
-        weights = window_heat(boxes.score, self.config.tracker.score_gain)
-        return add_heat(heat, inset_boxes(boxes.xyxy, self.config.tracker.window_inset), weights, cell=cell)
+        cfg = self.config.tracker
+        return inset_boxes(boxes.xyxy, cfg.window_inset), window_heat(boxes.score, cfg.score_gain)
 
     def detect_image(self, image: np.ndarray, windows: Detections | None = None) -> Detections:
         """Vehicles in one RGB ``uint8`` image ``(H, W, 3)``: one box per heat blob.
@@ -270,6 +274,8 @@ class Detector:
             heat, self.config.image_threshold, cell=cfg.cell, min_size=cfg.min_size, aspect_range=cfg.aspect_range,
             peak_fraction=cfg.peak_fraction, split_size=cfg.split_size,
         )
+        if cfg.cluster_iou > 0:
+            boxes, peaks = split_blobs(boxes, peaks, *self._heat_boxes(windows), iou=cfg.cluster_iou)
         return self._inside(Detections(boxes, score=peaks), self._picture(as_rgb_uint8(image, name="image")))
 
     def new_tracker(self) -> Tracker:

@@ -24,10 +24,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .detections import Detections
-from .geometry import as_boxes
+from .geometry import as_boxes, box_area, box_intersection, box_iou
 
 __all__ = [
     "add_heat",
+    "cluster_boxes",
+    "split_blobs",
     "apply_threshold",
     "label_heat",
     "blob_boxes",
@@ -523,3 +525,93 @@ def heat_to_boxes(
         boxes, peaks, _ = _core_boxes(arr, labels, blobs, cell, peak_fraction, split_size)
         return boxes, peaks
     return boxes, _peaks(arr, labels, blobs)
+
+
+def cluster_boxes(boxes: np.ndarray, weights: np.ndarray, iou: float) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy clustering of boxes that predict the same vehicle (box voting).
+
+    The heaviest box not yet taken opens a cluster of every untaken box overlapping it at
+    ``iou`` or more; the cluster's box is their weighted mean.
+
+    Parameters
+    ----------
+    boxes : ndarray, shape (n, 4)
+    weights : ndarray, shape (n,)
+        Positive weights (a window's heat).
+    iou : float
+        In (0, 1].
+
+    Returns
+    -------
+    centres : ndarray of float64, shape (k, 4)
+        One box per cluster, heaviest cluster first.
+    support : ndarray of float64, shape (k,)
+        Summed weight of each cluster.
+    """
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    weights = np.asarray(weights, np.float64).reshape(-1)
+    order = np.argsort(-weights, kind="stable")
+    overlap = box_iou(boxes, boxes) >= iou if len(boxes) else np.zeros((0, 0), bool)
+    free = np.ones(len(boxes), bool)
+    centres, support = [], []
+    for i in order.tolist():
+        if not free[i]:
+            continue
+        members = free & overlap[i]
+        free &= ~members
+        w = weights[members]
+        centres.append(w @ boxes[members] / w.sum())
+        support.append(w.sum())
+    return np.array(centres, np.float64).reshape(-1, 4), np.array(support, np.float64)
+
+
+def split_blobs(
+    blobs: np.ndarray, peaks: np.ndarray, boxes: np.ndarray, weights: np.ndarray, *, iou: float, min_share: float = 0.25
+) -> tuple[np.ndarray, np.ndarray]:
+    """One box per vehicle where a heat blob holds several: neighbours whose heat touches.
+
+    Heat merges two cars side by side into one blob. The boxes the windows stand for (refined
+    to their vehicles, :mod:`~vehicle_detection.refine`) still fall into one cluster per car
+    (:func:`cluster_boxes`). A blob whose boxes (those with most of their area inside it) form
+    two or more clusters, each holding at least ``min_share`` of their weight and overlapping
+    each other by less than ``iou``, is replaced by those clusters' boxes, clipped to the blob.
+
+    Parameters
+    ----------
+    blobs : ndarray, shape (k, 4)
+        Blob boxes in frame pixels.
+    peaks : ndarray, shape (k,)
+        Their peak heat (kept by each box a blob splits into).
+    boxes, weights : ndarray, shapes (n, 4) and (n,)
+        The frame's window boxes and heat weights.
+    iou : float
+        Clustering overlap, in (0, 1].
+    min_share : float
+        Smallest share of the blob's weight a cluster needs to count as a vehicle.
+
+    Returns
+    -------
+    boxes : ndarray of int64, shape (m, 4), m >= k
+    peaks : ndarray of float64, shape (m,)
+    """
+    blobs = np.asarray(blobs, np.int64).reshape(-1, 4)
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    if not len(blobs) or not len(boxes):
+        return blobs, np.asarray(peaks, np.float64)
+    inside = box_intersection(boxes, blobs.astype(np.float64)) / np.maximum(box_area(boxes), 1.0)[:, None]
+    out, out_peaks = [], []
+    for j, blob in enumerate(blobs):
+        mine = inside[:, j] >= 0.7
+        centres, support = cluster_boxes(boxes[mine], np.asarray(weights)[mine], iou)
+        keep = support >= min_share * support.sum() if len(support) else support.astype(bool)
+        centres = centres[keep]
+        if len(centres) >= 2 and (box_iou(centres, centres) - np.eye(len(centres))).max() < iou:
+            parts = np.clip(np.rint(centres), [blob[0], blob[1], blob[0], blob[1]], [blob[2], blob[3], blob[2], blob[3]]).astype(np.int64)
+            parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
+            if len(parts) >= 2:
+                out.extend(parts)
+                out_peaks.extend([peaks[j]] * len(parts))
+                continue
+        out.append(blob)
+        out_peaks.append(peaks[j])
+    return np.array(out, np.int64).reshape(-1, 4), np.array(out_peaks, np.float64)

@@ -288,7 +288,7 @@ def vehicle_patches(
     return crop_windows(work, wins, side)
 
 
-def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 4, block: int = 30, random_state: int = 0) -> Dataset:
+def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 12, block: int = 30, random_state: int = 0) -> Dataset:
     """Vehicle patches (:func:`vehicle_patches`) of every car of labelled frames, as training data.
 
     Each annotation file is a source ``vehicles/labelled_<input>``; its patches are grouped by

@@ -100,10 +100,11 @@ class SearchScale:
 
 def _default_scales():
     return (
-        SearchScale(1.0, 400, 496, step=2),
-        SearchScale(1.5, 400, 544, step=1),
-        SearchScale(2.0, 400, 592, step=1),
-        SearchScale(3.0, 400, 688, step=1),
+        SearchScale(1.0, 384, 496, step=1),
+        SearchScale(1.5, 384, 544, step=1),
+        SearchScale(2.0, 384, 592, step=1),
+        SearchScale(3.0, 384, 688, step=1),
+        SearchScale(4.0, 336, 720, step=1),
     )
 
 

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 
 from .detections import Detections
 from .geometry import box_iou, inset_boxes, match_boxes
-from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat
+from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat, split_blobs
 
 if TYPE_CHECKING:
     from .overlays import Overlays
@@ -57,7 +57,7 @@ class TrackerConfig:
         ``integrated = decay * integrated + current``. 0 uses the current frame only; 1 is
         refused (heat would never fade). A car covered by heat ``h`` every frame settles at
         ``h / (1 - decay)``.
-    threshold : float, default 5.0
+    threshold : float, default 3.0
         Integrated heat a cell must exceed to belong to a blob, finite and >= 0.
     cell : int, default 8
         Heat-map cell side in frame pixels, >= 1.
@@ -86,6 +86,11 @@ class TrackerConfig:
     score_gain : float, default 1.0
         Heat of a window is ``1 + score_gain * max(score, 0)``, finite and >= 0; 0 makes every
         window count 1 whatever its margin.
+    cluster_iou : float, default 0.0
+        If positive, a blob whose windows' boxes fall into several clusters (boxes overlapping
+        at this IoU), one per vehicle, is split into them (:func:`~.heatmap.split_blobs`): cars
+        side by side whose heat touches. For windows refined to their vehicles
+        (:mod:`~vehicle_detection.refine`); 0 turns it off. In ``[0, 1]``.
     window_inset : (float, float, float, float), default (-0.05, 0.05, -0.05, 0.15)
         A window adds its heat to its box inset by these fractions (left, top, right, bottom)
         of its width and height, each in ``(-0.5, 0.5)``: where the classifier puts the
@@ -100,7 +105,7 @@ class TrackerConfig:
     """
 
     decay: float = 0.6
-    threshold: float = 5.0
+    threshold: float = 3.0
     cell: int = 8
     min_hits: int = 3
     max_misses: int = 5
@@ -111,6 +116,7 @@ class TrackerConfig:
     score_gain: float = 1.0
     peak_fraction: float = 0.3
     split_size: tuple[float, float] = (64, 64)
+    cluster_iou: float = 0.0
     window_inset: tuple[float, float, float, float] = (-0.05, 0.05, -0.05, 0.15)
 
     def __post_init__(self) -> None:
@@ -132,6 +138,7 @@ class TrackerConfig:
         real("match_iou", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
         real("score_gain", lambda v: v >= 0.0, "a finite number >= 0")
         real("peak_fraction", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
+        real("cluster_iou", lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
         integer("cell", 1)
         integer("min_hits", 1)
         integer("max_misses", 0)
@@ -155,8 +162,11 @@ class TrackerConfig:
 
     @classmethod
     def from_dict(cls, d: Any) -> TrackerConfig:
-        """The inverse of :meth:`to_dict`; unknown or missing fields raise ``ValueError``."""
+        """The inverse of :meth:`to_dict`; unknown or missing fields raise ``ValueError``, except
+        ``cluster_iou``, which settings saved before it lack (they load with it off)."""
         names = {f.name for f in dataclasses.fields(cls)}
+        if isinstance(d, dict) and "cluster_iou" not in d:
+            d = {**d, "cluster_iou": 0.0}
         if not isinstance(d, dict) or set(d) != names:
             got = sorted(d) if isinstance(d, dict) else type(d).__name__
             raise ValueError(f"tracker settings must have exactly the fields {sorted(names)}; got {got}")
@@ -458,6 +468,8 @@ class Tracker:
         peaks = _peaks(integrated, labels, blobs)
         if cfg.peak_fraction > 0 and blobs:
             cand, peaks, _ = _core_boxes(integrated, labels, blobs, cfg.cell, cfg.peak_fraction, cfg.split_size)
+        if cfg.cluster_iou > 0 and len(cand):
+            cand, peaks = split_blobs(cand, peaks, win, weights, iou=cfg.cluster_iou)
 
         # 4. Association and track life cycle.
         tracks = st.tracks
