@@ -333,7 +333,7 @@ def test_missing_file_and_folder(tmp_path):
 def test_older_library_version_accepted(saved_model, tmp_path):
     d, meta = _contents(saved_model)
     meta["library_version"] = "0.0.1"
-    meta["sha256"] = _digest({k: d[k] for k in ("scaler_mean", "scaler_scale", "coef", "intercept")}, meta)
+    meta["sha256"] = _digest({k: v for k, v in d.items() if k != "meta"}, meta)
     m = VehicleClassifier.load(_write(tmp_path / "old.npz", d, meta))
     assert m.library_version == "0.0.1"
 
@@ -511,7 +511,7 @@ def test_version_1_files_are_migrated_with_the_settings_of_library_0_1(tmp_path)
     d, meta = _contents(src)
     del meta["detector_config"]
     meta.update(format_version=1, library_version="0.1.0")
-    meta["sha256"] = _digest({k: d[k] for k in ("scaler_mean", "scaler_scale", "coef", "intercept")}, meta)
+    meta["sha256"] = _digest({k: v for k, v in d.items() if k != "meta"}, meta)
     old = VehicleClassifier.load(_write(tmp_path / "v1.npz", d, meta))
     # Library 0.1 ran every model with what were then the defaults; they are written out in
     # the migration, independent of today's defaults.
@@ -530,7 +530,7 @@ def test_files_saved_before_the_overlay_setting_load_with_it_on(tmp_path):
     d, meta = _contents(src)
     assert meta["detector_config"]["auto_overlays"] is True
     del meta["detector_config"]["auto_overlays"]
-    meta["sha256"] = _digest({k: d[k] for k in ("scaler_mean", "scaler_scale", "coef", "intercept")}, meta)
+    meta["sha256"] = _digest({k: v for k, v in d.items() if k != "meta"}, meta)
     old = VehicleClassifier.load(_write(tmp_path / "old.npz", d, meta))
     assert old.detector_config == load_default_model().detector_config and old.detector_config.auto_overlays
     off = load_default_model().replace(
@@ -550,7 +550,7 @@ def test_oversized_members_are_refused_before_reading(tmp_path):
         for name, arr in {**d, "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}.items():
             with zf.open(f"{name}.npy", "w") as f:
                 np.lib.format.write_array(f, arr)
-    assert bomb.stat().st_size < 300_000  # small on disk, large unpacked
+    assert bomb.stat().st_size < 1_000_000  # small on disk, large unpacked
     with pytest.raises(ModelError, match="meta is .* bytes unpacked"):
         VehicleClassifier.load(bomb)
 

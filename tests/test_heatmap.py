@@ -403,3 +403,45 @@ def test_small_cores_of_one_car_stay_one_box():
     boxes, peaks = heat_to_boxes(heat, 1.0, cell=8, peak_fraction=0.3, split_size=(64, 64), min_size=(32, 32))
     assert boxes.tolist() == [[40, 40, 144, 120]]
     assert peaks.tolist() == [20.0]
+
+
+# --- clusters of refined boxes ----------------------------------------------------------------
+
+
+def test_cluster_boxes_votes_the_weighted_mean():
+    from vehicle_detection.heatmap import cluster_boxes
+
+    boxes = np.array([[0, 0, 100, 60], [4, 2, 104, 62], [300, 0, 380, 60]], float)
+    centres, support = cluster_boxes(boxes, np.array([3.0, 1.0, 2.0]), 0.5)
+    np.testing.assert_allclose(centres, [[1, 0.5, 101, 60.5], [300, 0, 380, 60]])
+    np.testing.assert_allclose(support, [4.0, 2.0])
+
+
+def test_split_blobs_splits_neighbours_and_keeps_one_car_whole():
+    from vehicle_detection.heatmap import split_blobs
+
+    left, right = np.array([100, 50, 200, 120]), np.array([206, 50, 306, 120])
+    rng = np.random.default_rng(0)
+    votes = np.concatenate([b + rng.integers(-3, 4, (6, 4)) for b in (left, right)])
+    blob = np.array([[96, 46, 312, 124]])
+    boxes, peaks = split_blobs(blob, np.array([9.0]), votes, np.ones(12), iou=0.3)
+    assert sorted(boxes.tolist()) == sorted(np.clip(np.rint([votes[:6].mean(0), votes[6:].mean(0)]), [96, 46, 96, 46], [312, 124, 312, 124]).astype(int).tolist())
+    assert peaks.tolist() == [9.0, 9.0]
+    # one car, plus a few votes for its rear window (inside it): not split
+    one = np.concatenate([left + rng.integers(-3, 4, (6, 4)), np.tile([130, 60, 170, 90], (3, 1))])
+    same, _ = split_blobs(np.array([[96, 46, 204, 124]]), np.array([5.0]), one, np.ones(9), iou=0.3)
+    assert same.tolist() == [[96, 46, 204, 124]]
+    # a cluster with too little weight is no car
+    weak = np.concatenate([left + rng.integers(-3, 4, (6, 4)), right[None]])
+    kept, _ = split_blobs(blob, np.array([5.0]), weak, np.ones(7), iou=0.3)
+    assert kept.tolist() == blob.tolist()
+
+
+def test_tracker_settings_saved_before_clustering_load_with_it_off():
+    from vehicle_detection.tracker import TrackerConfig
+
+    d = TrackerConfig(cluster_iou=0.3).to_dict()
+    del d["cluster_iou"]
+    assert TrackerConfig.from_dict(d).cluster_iou == 0.0
+    with pytest.raises(ValueError, match="cluster_iou"):
+        TrackerConfig(cluster_iou=1.5)

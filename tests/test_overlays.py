@@ -245,14 +245,16 @@ def test_no_track_lives_on_the_windscreen_mount():
     from vehicle_detection.detector import Detector
 
     frames = frames_of(HIGHWAY, 0, 200)
-    detector = Detector()
+    # The embedded model learned the mount as a negative; a bolder one (every margin + 0.5) fires there.
+    model = Detector().model
+    detector = Detector(model.replace(intercept=model.intercept + 0.5))
     tracker = detector.new_tracker()
     found = Detections.concatenate(detector.track(frames, tracker))
     integral = mask_integral(tracker.state.overlays.mask)
     assert len(found) and (mask_share(found.xyxy, integral) <= 0.5).all()
-    # Without the mask, tracks sit on the mount for many frames.
-    before = Detections.concatenate(Detector(config=detector.config.replace(auto_overlays=False)).track(frames))
-    assert (mask_share(before.xyxy, integral) > 0.5).sum() >= 50
+    # Without the mask, its tracks sit on the mount for many frames.
+    before = Detections.concatenate(Detector(detector.model, detector.config.replace(auto_overlays=False)).track(frames))
+    assert (mask_share(before.xyxy, integral) > 0.5).sum() >= 20
 
 
 # --- helpers ----------------------------------------------------------------------------------

@@ -77,8 +77,8 @@ def scenario(n_frames: int = 40, seed: int = 3) -> list[tuple[np.ndarray, np.nda
 # --------------------------------------------------------------------------------------------
 def test_config_defaults():
     cfg = _TrackerConfig()
-    assert (cfg.decay, cfg.threshold, cfg.cell, cfg.min_hits, cfg.max_misses) == (0.6, 5.0, 8, 3, 5)
-    assert cfg.peak_fraction == 0.3
+    assert (cfg.decay, cfg.threshold, cfg.cell, cfg.min_hits, cfg.max_misses) == (0.6, 3.0, 8, 3, 5)
+    assert cfg.peak_fraction == 0.3 and cfg.cluster_iou == 0.0
     assert (cfg.smoothing, cfg.match_iou, cfg.score_gain) == (0.5, 0.2, 1.0)
     assert cfg.window_inset == (-0.05, 0.05, -0.05, 0.15)
     assert cfg.min_size == (32.0, 32.0) and cfg.aspect_range == (0.3, 4.0)

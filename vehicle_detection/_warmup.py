@@ -91,7 +91,7 @@ def _blank_band(model):
     plan = model.detector_config.plan
     work, _ = _working_frame(np.zeros((720, 320, 3), np.uint8), plan)
     for s in plan.scales:
-        band = _band(work, s, model.config, plan.overhang, plan.y_shift)
+        band = _band(work, s, model.config, plan.overhang_of(s), plan.y_shift)
         if band is not None:
             return band
     return None

@@ -123,7 +123,7 @@ class VehicleClassifier:
     >>> model.weights.flags.writeable
     False
     >>> bolder = model.replace(intercept=model.intercept + 1.0)
-    >>> float(bolder.bias - model.bias)
+    >>> round(float(bolder.bias - model.bias), 9)
     1.0
     """
 

@@ -565,6 +565,15 @@ def cluster_boxes(boxes: np.ndarray, weights: np.ndarray, iou: float) -> tuple[n
     return np.array(centres, np.float64).reshape(-1, 4), np.array(support, np.float64)
 
 
+def _apart(boxes: np.ndarray, iou: float) -> bool:
+    """Whether boxes are separate vehicles: no pair overlaps at ``iou`` and none lies mostly
+    inside another (a car's rear window is not a second car)."""
+    inter = box_intersection(boxes, boxes)
+    smaller = np.minimum.outer(box_area(boxes), box_area(boxes))
+    np.fill_diagonal(inter, 0.0)
+    return bool((box_iou(boxes, boxes) - np.eye(len(boxes))).max() < iou and (inter / smaller).max() < 0.5)
+
+
 def split_blobs(
     blobs: np.ndarray, peaks: np.ndarray, boxes: np.ndarray, weights: np.ndarray, *, iou: float, min_share: float = 0.25
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -573,8 +582,8 @@ def split_blobs(
     Heat merges two cars side by side into one blob. The boxes the windows stand for (refined
     to their vehicles, :mod:`~vehicle_detection.refine`) still fall into one cluster per car
     (:func:`cluster_boxes`). A blob whose boxes (those with most of their area inside it) form
-    two or more clusters, each holding at least ``min_share`` of their weight and overlapping
-    each other by less than ``iou``, is replaced by those clusters' boxes, clipped to the blob.
+    two or more clusters, each holding at least ``min_share`` of their weight, overlapping
+    each other by less than ``iou`` and none mostly inside another, is replaced by those clusters' boxes, clipped to the blob.
 
     Parameters
     ----------
@@ -605,7 +614,7 @@ def split_blobs(
         centres, support = cluster_boxes(boxes[mine], np.asarray(weights)[mine], iou)
         keep = support >= min_share * support.sum() if len(support) else support.astype(bool)
         centres = centres[keep]
-        if len(centres) >= 2 and (box_iou(centres, centres) - np.eye(len(centres))).max() < iou:
+        if len(centres) >= 2 and _apart(centres, iou):
             parts = np.clip(np.rint(centres), [blob[0], blob[1], blob[0], blob[1]], [blob[2], blob[3], blob[2], blob[3]]).astype(np.int64)
             parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
             if len(parts) >= 2:

@@ -122,6 +122,10 @@ class SearchPlan:
     overhang : float
         Fraction of a window's width that may lie beyond the left or right frame edge, in
         ``[0, 1)``: the frame is mirrored there, and boxes are clipped to the frame.
+    overhang_min_scale : float
+        Windows of smaller scales (``scale * aspect``) do not overhang: a vehicle
+        cut by the frame edge is a close, large one, while half a small window mirrored at the
+        edge makes a symmetric pattern that looks like a car's rear.
     horizon : float or None
         Where the camera's horizon is (the row where the road vanishes), as a fraction of the
         frame height from the top: the bands move up or down together by its distance from
@@ -149,6 +153,7 @@ class SearchPlan:
     threshold: float = 0.3
     reference_height: int = 720
     overhang: float = 0.5
+    overhang_min_scale: float = 2.0
     horizon: float | None = None
     reference_horizon: float = 0.583
     full_search_every: int = 1
@@ -176,6 +181,10 @@ class SearchPlan:
             if v is not None and not 0.0 <= v < 1.0:
                 raise ValueError(f"{name} must be a fraction of the frame height in [0, 1), got {v}")
 
+    def overhang_of(self, s: SearchScale) -> float:
+        """The overhang of scale ``s``'s windows (0 below ``overhang_min_scale``)."""
+        return self.overhang if s.scale * s.aspect >= self.overhang_min_scale else 0.0
+
     @property
     def y_shift(self) -> int:
         """Rows (at the reference height) the bands move down: the horizon's distance below the reference."""
@@ -189,6 +198,7 @@ class SearchPlan:
             "threshold": self.threshold,
             "reference_height": self.reference_height,
             "overhang": self.overhang,
+            "overhang_min_scale": self.overhang_min_scale,
             "horizon": self.horizon,
             "reference_horizon": self.reference_horizon,
             "full_search_every": self.full_search_every,
@@ -207,11 +217,11 @@ class SearchPlan:
         """
         try:
             required = {"scales", "threshold", "reference_height", "overhang", "horizon"}
-            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon"}
+            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon", "overhang_min_scale"}
             if not required <= set(d) <= required | optional:
                 raise ValueError(f"fields {sorted(d)}")
-            schedule = {k: d[k] for k in optional & set(d)}
-            for name in ("track_margin", "reference_horizon"):
+            schedule = {"overhang_min_scale": 0.0, **{k: d[k] for k in optional & set(d)}}
+            for name in ("track_margin", "reference_horizon", "overhang_min_scale"):
                 if name in schedule:
                     schedule[name] = float(schedule[name])
             return cls(
@@ -390,7 +400,7 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
     dummy = np.zeros((plan.reference_height, max(1, round(w * f)), 3), np.uint8)
     out = []
     for s in plan.scales:
-        band = _band(dummy, s, config, plan.overhang, plan.y_shift)
+        band = _band(dummy, s, config, plan.overhang_of(s), plan.y_shift)
         out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f, frame_shape))
     return out
 
@@ -413,7 +423,7 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan |
     side, ppc = cfg.window, cfg.pixels_per_cell
     parts = []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg, plan.overhang, plan.y_shift)
+        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
         patches = np.stack(
@@ -464,7 +474,7 @@ def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassif
     for k in np.unique(scale_index):
         if not 0 <= k < len(plan.scales):
             raise ValueError(f"scale_index {k} is not a scale of the plan ({len(plan.scales)} scales)")
-        band = _band(work, plan.scales[k], cfg, plan.overhang, plan.y_shift)
+        band = _band(work, plan.scales[k], cfg, plan.overhang_of(plan.scales[k]), plan.y_shift)
         if band is None:
             raise ValueError(f"scale {k} of the plan searches no window in a {frame.shape[1]}x{frame.shape[0]} frame")
         boxes = _band_boxes(band, cfg, f, frame.shape)
@@ -800,7 +810,7 @@ def search(
         around = np.asarray(around, np.float64).reshape(-1, 4) * f
     parts = []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg, plan.overhang, plan.y_shift)
+        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
         if around is None:
