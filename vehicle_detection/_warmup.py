@@ -40,6 +40,13 @@ _MAIN_KERNELS = (
     ("search", "_score_colour", "search._score_colour-"),
 )
 
+# Compiled here too, for models that refine their boxes (not replaced in the helper: a blank
+# frame has no hot window to refine).
+_REFINE_KERNELS = (
+    ("features", "_features_serial", "features._features_serial-"),
+    ("refine", "_products", "refine._products-"),
+)
+
 
 def _module(name: str):
     import importlib
@@ -104,6 +111,12 @@ def _compile_main(model) -> None:
     band = _blank_band(model)
     if band is not None:
         _score_band(band, model, reuse=False, hog_blocks=False)
+    if model.box_regressor is not None:
+        from .features import extract_features
+
+        side = model.config.window
+        features = extract_features(np.zeros((1, side, side, 3), np.uint8), model.config, parallel=False)
+        model.box_regressor.offsets(features)
 
 
 def compile_search_kernels(model) -> None:
@@ -115,7 +128,8 @@ def compile_search_kernels(model) -> None:
         if _DONE.is_set():
             return
         _DONE.set()
-        if _cores() < 2 or _cached(_HELPER_KERNELS + _MAIN_KERNELS):
+        refine = _REFINE_KERNELS if model.box_regressor is not None else ()
+        if _cores() < 2 or _cached(_HELPER_KERNELS + _MAIN_KERNELS + refine):
             return
         env = dict(os.environ)
         env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)

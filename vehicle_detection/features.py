@@ -261,21 +261,26 @@ def convert_color(image: np.ndarray, color_space: str) -> np.ndarray:
     return cv2.cvtColor(flat, _CV2_CODES[color_space]).reshape(image.shape)
 
 
-@njit(nogil=True, parallel=True)
-def _bin_spatial_batch(images, size, out):
-    n, h, w, c = images.shape
+@njit(nogil=True)
+def _bin_spatial_one(images, i, size, out):
+    _, h, w, c = images.shape
     fy = h // size
     fx = w // size
     inv = 1.0 / (fy * fx)
-    for i in numba.prange(n):
-        for by in range(size):
-            for bx in range(size):
-                for ch in range(c):
-                    s = np.int64(0)  # a Python 0 plus uint8 stays uint8 without the JIT (NumPy 2)
-                    for y in range(by * fy, (by + 1) * fy):
-                        for x in range(bx * fx, (bx + 1) * fx):
-                            s += images[i, y, x, ch]
-                    out[i, (by * size + bx) * c + ch] = s * inv
+    for by in range(size):
+        for bx in range(size):
+            for ch in range(c):
+                s = np.int64(0)  # a Python 0 plus uint8 stays uint8 without the JIT (NumPy 2)
+                for y in range(by * fy, (by + 1) * fy):
+                    for x in range(bx * fx, (bx + 1) * fx):
+                        s += images[i, y, x, ch]
+                out[i, (by * size + bx) * c + ch] = s * inv
+
+
+@njit(nogil=True, parallel=True)
+def _bin_spatial_batch(images, size, out):
+    for i in numba.prange(images.shape[0]):
+        _bin_spatial_one(images, i, size, out)
 
 
 def bin_spatial(image: np.ndarray, size: int) -> np.ndarray:
@@ -304,17 +309,22 @@ def bin_spatial(image: np.ndarray, size: int) -> np.ndarray:
     return out[0] if single else out
 
 
+@njit(nogil=True)
+def _histogram_one(images, i, bins, out):
+    _, h, w, c = images.shape
+    for ch in range(c):
+        for b in range(bins):
+            out[i, ch * bins + b] = 0.0
+    for y in range(h):
+        for x in range(w):
+            for ch in range(c):
+                out[i, ch * bins + (np.int32(images[i, y, x, ch]) * bins) // 256] += 1.0
+
+
 @njit(nogil=True, parallel=True)
 def _histogram_batch(images, bins, out):
-    n, h, w, c = images.shape
-    for i in numba.prange(n):
-        for ch in range(c):
-            for b in range(bins):
-                out[i, ch * bins + b] = 0.0
-        for y in range(h):
-            for x in range(w):
-                for ch in range(c):
-                    out[i, ch * bins + (np.int32(images[i, y, x, ch]) * bins) // 256] += 1.0
+    for i in numba.prange(images.shape[0]):
+        _histogram_one(images, i, bins, out)
 
 
 def color_histogram(image: np.ndarray, bins: int) -> np.ndarray:
@@ -584,29 +594,46 @@ def _clipped_block(variants, ss, r, c, cpb, vclass, hclass, block):
     return 1.0 / math.sqrt(s2 + 1e-10)
 
 
-@njit(nogil=True, parallel=True)
-def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
-    """HOG of each chosen channel of each patch. images: (N, H, W, C) uint8; out: (N, F) float32."""
-    n, h, w, _ = images.shape
+@njit(nogil=True)
+def _hog_one(images, i, channels, lut, ppc, cpb, nb, out):
+    """HOG of each chosen channel of patch ``i``. images: (N, H, W, C) uint8; out: (N, F) float32."""
+    _, h, w, _ = images.shape
     n_cr = h // ppc
     n_cc = w // ppc
     n_br = n_cr - cpb + 1
     n_bc = n_cc - cpb + 1
     bs = cpb * cpb * nb
     per_ch = n_br * n_bc * bs
-    for i in numba.prange(n):
-        variants = np.empty((1, 1, n_cr, n_cc, nb), np.float64)
-        block = np.empty(bs, np.float64)
-        for ci in range(channels.shape[0]):
-            variants[:] = 0.0
-            _cell_votes(images[i, :, :, channels[ci]], lut, ppc, n_cr, n_cc, nb, variants[0, 0])
-            base = ci * per_ch
-            for r in range(n_br):
-                for c in range(n_bc):
-                    _gather_block(variants, r, c, cpb, 0, 0, block)
-                    o = base + (r * n_bc + c) * bs
-                    for j in range(bs):
-                        out[i, o + j] = block[j]
+    variants = np.empty((1, 1, n_cr, n_cc, nb), np.float64)
+    block = np.empty(bs, np.float64)
+    for ci in range(channels.shape[0]):
+        variants[:] = 0.0
+        _cell_votes(images[i, :, :, channels[ci]], lut, ppc, n_cr, n_cc, nb, variants[0, 0])
+        base = ci * per_ch
+        for r in range(n_br):
+            for c in range(n_bc):
+                _gather_block(variants, r, c, cpb, 0, 0, block)
+                o = base + (r * n_bc + c) * bs
+                for j in range(bs):
+                    out[i, o + j] = block[j]
+
+
+@njit(nogil=True, parallel=True)
+def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
+    for i in numba.prange(images.shape[0]):
+        _hog_one(images, i, channels, lut, ppc, cpb, nb, out)
+
+
+@njit(nogil=True)
+def _features_serial(images, size, bins, hog_images, channels, lut, ppc, cpb, nb, spatial, hist, hog):
+    """All three feature parts of every patch on the calling thread (for small batches searched
+    in several threads at once, where parallel kernels would queue for the thread pool)."""
+    for i in range(images.shape[0]):
+        if size:
+            _bin_spatial_one(images, i, size, spatial)
+        if bins:
+            _histogram_one(images, i, bins, hist)
+        _hog_one(hog_images, i, channels, lut, ppc, cpb, nb, hog)
 
 
 def hog_input(converted: np.ndarray, config: FeatureConfig) -> np.ndarray:
@@ -660,7 +687,7 @@ def _check_patches(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
     return images
 
 
-def extract_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
+def extract_features(images: np.ndarray, config: FeatureConfig, *, parallel: bool = True) -> np.ndarray:
     """Feature vectors of RGB patches, as the classifier sees them.
 
     Parameters
@@ -668,6 +695,9 @@ def extract_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
     images : ndarray of uint8, shape (N, window, window, 3) or (window, window, 3)
         RGB patches.
     config : FeatureConfig
+    parallel : bool
+        Spread the patches over numba's threads (large batches); False computes them on the
+        calling thread, without the GIL (small batches in threads of their own: the search).
 
     Returns
     -------
@@ -682,6 +712,9 @@ def extract_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
     single = np.ndim(images) == 3
     batch = _check_patches(images, config)
     conv = convert_color(batch, config.color_space)
+    if not parallel:
+        feats = _serial_features(np.ascontiguousarray(conv), config)
+        return feats[0] if single else feats
     parts = []
     if config.spatial_size:
         parts.append(bin_spatial(conv, config.spatial_size))
@@ -690,6 +723,21 @@ def extract_features(images: np.ndarray, config: FeatureConfig) -> np.ndarray:
     parts.append(hog_features(hog_input(conv, config), config))
     feats = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
     return feats[0] if single else feats
+
+
+def _serial_features(conv: np.ndarray, config: FeatureConfig) -> np.ndarray:
+    """:func:`extract_features` of colour-converted patches, on this thread (same values)."""
+    n, h, w, c = conv.shape
+    size, bins = config.spatial_size, config.hist_bins
+    ppc, cpb, nb = config.pixels_per_cell, config.cells_per_block, config.orientations
+    channels = np.asarray(config.hog_channels, dtype=np.int64)
+    n_hog = len(channels) * (h // ppc - cpb + 1) * (w // ppc - cpb + 1) * cpb * cpb * nb
+    out = np.empty((n, size * size * c + c * bins + n_hog), np.float32)
+    parts = np.split(out, [size * size * c, size * size * c + c * bins], axis=1)  # views: written in place
+    if n:
+        hog_pixels = np.ascontiguousarray(hog_input(conv, config))
+        _features_serial(conv, size, bins, hog_pixels, channels, _orientation_lut(nb, config.signed), ppc, cpb, nb, *parts)
+    return out
 
 
 def hog_image(channel: np.ndarray, config: FeatureConfig) -> np.ndarray:

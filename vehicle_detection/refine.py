@@ -18,11 +18,12 @@ Boxes are ``(n, 4)`` arrays ``[x1, y1, x2, y2]`` in frame pixels, x2 and y2 excl
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
+from ._jit import njit
 from .features import FeatureConfig, extract_features
 from .geometry import as_boxes
 
@@ -48,6 +49,7 @@ class BoxRegressor:
 
     coef: np.ndarray
     intercept: np.ndarray
+    _weights: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         coef = np.array(self.coef, dtype=np.float64, copy=True)
@@ -56,10 +58,12 @@ class BoxRegressor:
             raise ValueError(f"a box regressor needs coef (4, n) and intercept (4,); got {coef.shape} and {intercept.shape}")
         if not (np.all(np.isfinite(coef)) and np.all(np.isfinite(intercept))):
             raise ValueError("box regressor weights must be finite")
-        for arr in (coef, intercept):
+        weights = np.ascontiguousarray(coef, dtype=np.float32)  # the features are float32
+        for arr in (coef, intercept, weights):
             arr.setflags(write=False)
         object.__setattr__(self, "coef", coef)
         object.__setattr__(self, "intercept", intercept)
+        object.__setattr__(self, "_weights", weights)
 
     @property
     def n_features(self) -> int:
@@ -68,7 +72,7 @@ class BoxRegressor:
     def offsets(self, features: np.ndarray) -> np.ndarray:
         """Predicted edge offsets of feature vectors ``(n, n_features)``: float64 ``(n, 4)``,
         clipped to ``[-MAX_OFFSET, MAX_OFFSET]``."""
-        d = np.asarray(features, dtype=np.float64) @ self.coef.T + self.intercept
+        d = _products(np.ascontiguousarray(features, dtype=np.float32), self._weights) + self.intercept
         return np.clip(d, -MAX_OFFSET, MAX_OFFSET)
 
     def refine(self, windows: np.ndarray, features: np.ndarray, frame_shape: tuple[int, ...]) -> np.ndarray:
@@ -87,6 +91,21 @@ class BoxRegressor:
             Boxes inside the frame, each at least one pixel wide and high.
         """
         return apply_offsets(windows, self.offsets(features), frame_shape)
+
+
+@njit(nogil=True, fastmath=True)
+def _products(features, weights):
+    """``features @ weights.T`` in float64 sums, on this thread: BLAS would start threads of its
+    own beside the search's, which spin on the cores the search needs."""
+    n, k = features.shape[0], weights.shape[0]
+    out = np.zeros((n, k), np.float64)
+    for i in range(n):
+        for j in range(k):
+            s = 0.0
+            for f in range(features.shape[1]):
+                s += features[i, f] * weights[j, f]
+            out[i, j] = s
+    return out
 
 
 def edge_offsets(windows: np.ndarray, boxes: np.ndarray) -> np.ndarray:

@@ -371,20 +371,16 @@ def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple
     return np.clip(boxes, 0, [w, h, w, h])
 
 
-def _refined(band: _Band, model: VehicleClassifier, f: float, frame_shape: tuple[int, ...], keep: np.ndarray) -> np.ndarray:
-    """Refined boxes (:mod:`~vehicle_detection.refine`) of the band's windows selected by ``keep``."""
-    cfg = model.config
-    ppc, side = cfg.pixels_per_cell, cfg.window
+def _band_patches(band: _Band, config: FeatureConfig, keep: np.ndarray) -> np.ndarray:
+    """The 64x64 patches of the band's windows selected by ``keep``, as the classifier scored them."""
+    ppc, side = config.pixels_per_cell, config.window
     index = np.flatnonzero(keep)
-    if not len(index):
-        return np.zeros((0, 4), np.int64)
     n_cols = len(band.cols)
     patches = np.empty((len(index), side, side, 3), np.uint8)
     for j, i in enumerate(index.tolist()):
         r, c = band.rows[i // n_cols] * ppc, band.cols[i % n_cols] * ppc
         patches[j] = band.image[r : r + side, c : c + side]
-    windows = _band_windows(band, cfg, f)[index]
-    return model.box_regressor.refine(windows, extract_features(patches, cfg), frame_shape)
+    return patches
 
 
 def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[np.ndarray]:
@@ -808,7 +804,8 @@ def search(
     cfg = model.config
     if around is not None:
         around = np.asarray(around, np.float64).reshape(-1, 4) * f
-    parts = []
+    refine = model.box_regressor is not None and not all_windows
+    parts, windows, patches = [], [], []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
@@ -820,10 +817,15 @@ def search(
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
             scores = _score_band_where(band, model, mask)
             keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
-        found = _windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k)
-        if model.box_regressor is not None and not all_windows:
-            found = found.replace(data={**found.data, "box": _refined(band, model, f, frame.shape, keep)})
-        parts.append(found)
-    if not parts:
-        return _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
-    return Detections.concatenate(parts)
+        parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
+        if refine:
+            windows.append(_band_windows(band, cfg, f)[keep])
+            patches.append(_band_patches(band, cfg, keep))
+    found = Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
+    if refine:  # all bands at once: one feature pass, one product
+        boxes = np.zeros((0, 4), np.int64)
+        if len(found):
+            features = extract_features(np.concatenate(patches), cfg, parallel=False)  # a thread per core already
+            boxes = model.box_regressor.refine(np.concatenate(windows), features, frame.shape)
+        found = found.replace(data={**found.data, "box": boxes})
+    return found
