@@ -451,6 +451,27 @@ def test_train_json_on_a_small_data_folder(tmp_path, capsys):
     csv_rows(tmp_path / "street_boxes.csv")
 
 
+@needs_archives
+def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_path, capsys):
+    from vehicle_detection.classifier import VehicleClassifier
+
+    data = small_archives(tmp_path / "data", 150)
+    labels = Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json"
+    model = tmp_path / "m.npz"
+    assert main(["train", "--data-dir", str(data), "--labels", str(labels), "--json", "--model", str(model)]) == 0
+    assert last_json(capsys.readouterr().out)["n_images"] == 300 + 12 * 9  # 9 labelled cars, 12 patches each
+    loaded = VehicleClassifier.load(model)
+    assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
+    tracker = loaded.detector_config.tracker
+    assert tracker.window_inset == (0.0, 0.0, 0.0, 0.0) and tracker.cluster_iou > 0
+
+
+def test_mine_negatives_horizon_takes_a_fraction(tmp_path):
+    labels = str(Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json")
+    out = run_cli("mine-negatives", "--labels", labels, "--horizon", "auto", "--out", str(tmp_path / "n"))
+    assert out.returncode == 2 and "fraction" in out.stderr
+
+
 def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
     clip, _ = detected_clip
     table = read_boxes_csv(clip.with_name("clip8_boxes.csv"))

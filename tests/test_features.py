@@ -713,3 +713,12 @@ def test_hog_sqrt_is_the_documented_gamma_table():
     feats = extract_features(imgs, cfg)[:, cfg.layout()["hog"]]
     want = hog_features(SQRT_LUT[convert_color(imgs, cfg.color_space)], plain)
     np.testing.assert_allclose(feats, want, atol=1e-6)
+
+
+def test_serial_features_equal_the_parallel_ones(shipped_patches):
+    from vehicle_detection.features import FeatureConfig, extract_features
+
+    for cfg in (FeatureConfig(), FeatureConfig(hog_channels=(0,), spatial_size=0, hist_bins=8), FeatureConfig(hist_bins=0)):
+        parallel = extract_features(shipped_patches, cfg)
+        assert np.array_equal(extract_features(shipped_patches, cfg, parallel=False), parallel)
+        assert np.array_equal(extract_features(shipped_patches[0], cfg, parallel=False), parallel[0])

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -163,3 +162,28 @@ def test_refined_boxes_follow_the_picture_inside_black_bars(test_frames):
     plain, barred = detector.windows(frame), detector.windows(padded)
     assert len(plain) > 0 and np.array_equal(plain.xyxy + [96, 0, 96, 0], barred.xyxy)
     assert np.array_equal(plain.data["box"] + [96, 0, 96, 0], barred.data["box"])
+
+
+def test_offsets_are_the_linear_map_of_the_features():
+    rng = np.random.default_rng(4)
+    coef, intercept = rng.normal(0, 0.01, (4, 300)), rng.normal(0, 0.1, 4)
+    features = rng.random((7, 300)).astype(np.float32)
+    want = np.clip(features.astype(np.float64) @ coef.T + intercept, -MAX_OFFSET, MAX_OFFSET)
+    np.testing.assert_allclose(BoxRegressor(coef, intercept).offsets(features), want, atol=1e-5)
+
+
+def test_labelled_frames_give_vehicle_patches_grouped_by_blocks(tmp_path):
+    from vehicle_detection.data import Dataset
+    from vehicle_detection.evaluate import load_annotations
+    from vehicle_detection.mining import labelled_dataset
+
+    repo = Path(__file__).resolve().parents[1]
+    labels = load_annotations(repo / "dev_set" / "test_images.json")
+    ds = labelled_dataset([labels], per_car=3)
+    n_cars = sum(len(f.cars) for f in labels.frames.values())
+    assert len(ds) == 3 * n_cars and set(ds.labels.tolist()) == {1} and ds.images.shape[1:] == (64, 64, 3)
+    assert set(ds.sources.tolist()) == {"vehicles/labelled_test_images"}
+    other = Dataset.from_patches([(ds.images[:2], ["x/a.png", "x/b.png"], "g")], label=0)
+    joined = ds.concatenate(other)
+    assert len(joined) == len(ds) + 2 and joined.labels[-2:].tolist() == [0, 0]
+    assert not set(joined.groups[-2:].tolist()) & set(ds.groups.tolist())
