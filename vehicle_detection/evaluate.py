@@ -18,6 +18,13 @@ Scoring conventions
 * ``recall = tp / (tp + fn)``, defined as 1.0 when there are no cars.
 * ``f1`` is the harmonic mean of precision and recall, 0.0 when both are 0.
 * ``fp_per_frame = fp / n_frames``, 0.0 when no frame was scored.
+
+Cameras and failures
+--------------------
+Several labels files are pooled per camera (:func:`pool_by_camera`): the file's ``camera`` key,
+else its frame size (:func:`camera_name`). :func:`find_failures` lists what a contact sheet shows
+(:mod:`vehicle_detection.reporting`): misses and false positives at IoU 0.5, and loose matches
+(matched at 0.5 with IoU below 0.7).
 """
 
 from __future__ import annotations
