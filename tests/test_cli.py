@@ -463,7 +463,7 @@ def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_p
     loaded = VehicleClassifier.load(model)
     assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
     tracker = loaded.detector_config.tracker
-    assert tracker.window_inset == (0.0, 0.0, 0.0, 0.0) and tracker.cluster_iou > 0
+    assert tracker.window_inset == (0.0, 0.0, 0.0, 0.0) and tracker.cluster_iou > 0 and tracker.box_vote > 0
 
 
 def test_mine_negatives_horizon_takes_a_fraction(tmp_path):

@@ -437,11 +437,32 @@ def test_split_blobs_splits_neighbours_and_keeps_one_car_whole():
     assert kept.tolist() == blob.tolist()
 
 
-def test_tracker_settings_saved_before_clustering_load_with_it_off():
+def test_vote_boxes_moves_a_loose_blob_towards_its_windows_boxes():
+    from vehicle_detection.heatmap import vote_boxes
+
+    car = np.array([100, 50, 200, 120])
+    rng = np.random.default_rng(1)
+    votes = car + rng.integers(-3, 4, (8, 4))
+    mean = votes.mean(0)
+    blob = np.array([[80, 40, 220, 150]])  # heat spread beyond the car, most below it
+    for fraction in (0.0, 0.5, 1.0):
+        moved = vote_boxes(blob, votes, np.ones(8), iou=0.3, fraction=fraction)
+        assert moved.tolist() == [np.rint(blob[0] + fraction * (mean - blob[0])).astype(int).tolist()]
+    # windows of another blob do not vote here; a blob without windows keeps its box
+    far = np.array([[500, 50, 600, 120]])
+    both = vote_boxes(np.concatenate([blob, far]), votes, np.ones(8), iou=0.3, fraction=1.0)
+    assert both[1].tolist() == far[0].tolist() and both[0].tolist() == np.rint(mean).astype(int).tolist()
+    # the heaviest cluster votes, not a stray box that also lies inside the blob
+    stray = np.concatenate([votes, [[82, 42, 120, 80]]])
+    assert vote_boxes(blob, stray, np.r_[np.ones(8), 0.5], iou=0.3, fraction=1.0).tolist() == [np.rint(mean).astype(int).tolist()]
+
+
+def test_tracker_settings_saved_before_clustering_and_voting_load_with_them_off():
     from vehicle_detection.tracker import TrackerConfig
 
-    d = TrackerConfig(cluster_iou=0.3).to_dict()
-    del d["cluster_iou"]
-    assert TrackerConfig.from_dict(d).cluster_iou == 0.0
-    with pytest.raises(ValueError, match="cluster_iou"):
-        TrackerConfig(cluster_iou=1.5)
+    for name in ("cluster_iou", "box_vote"):
+        d = TrackerConfig(cluster_iou=0.3, box_vote=0.5).to_dict()
+        del d[name]
+        assert getattr(TrackerConfig.from_dict(d), name) == 0.0
+        with pytest.raises(ValueError, match=name):
+            TrackerConfig(**{name: 1.5})

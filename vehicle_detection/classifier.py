@@ -502,12 +502,15 @@ def train(
     return model.replace(metrics=metrics)
 
 
-def with_box_refinement(model: VehicleClassifier, annotations, *, alpha: float = 1000.0, cluster_iou: float = 0.3) -> VehicleClassifier:
+def with_box_refinement(
+    model: VehicleClassifier, annotations, *, alpha: float = 1000.0, cluster_iou: float = 0.3, box_vote: float = 0.5
+) -> VehicleClassifier:
     """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
 
     Heat then goes to each window's refined box as it is (no fixed window inset), and blobs
     whose refined boxes form several clusters at ``cluster_iou`` are split, one box per vehicle
-    (:func:`~vehicle_detection.heatmap.split_blobs`).
+    (:func:`~vehicle_detection.heatmap.split_blobs`); each box then moves ``box_vote`` of the
+    way to the mean of its windows' refined boxes (:func:`~vehicle_detection.heatmap.vote_boxes`).
 
     Parameters
     ----------
@@ -515,6 +518,8 @@ def with_box_refinement(model: VehicleClassifier, annotations, *, alpha: float =
         Labelled frames; frames you score later must not be among them.
     alpha : float
         Ridge penalty.
+    cluster_iou, box_vote : float
+        Saved in the detector's tracker settings (:class:`~vehicle_detection.tracker.TrackerConfig`).
     """
     from .mining import labelled_frames
     from .refine import fit_box_regressor
@@ -523,7 +528,7 @@ def with_box_refinement(model: VehicleClassifier, annotations, *, alpha: float =
     t = time.perf_counter()
     regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height)
     cfg = model.detector_config
-    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou))
+    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote))
     metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "seconds": round(time.perf_counter() - t, 3),
                                                     "labels": [str(a.path) for a in annotations]}}
     return model.replace(box_regressor=regressor, detector_config=cfg, metrics=metrics)

@@ -30,7 +30,7 @@ from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
-from .heatmap import add_heat, heat_to_boxes, split_blobs
+from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
 from .images import as_rgb_uint8
 from .overlays import Overlays, active_area, mask_integral, mask_share
 from .search import search
@@ -275,7 +275,9 @@ class Detector:
             peak_fraction=cfg.peak_fraction, split_size=cfg.split_size,
         )
         if cfg.cluster_iou > 0:
-            boxes, peaks = split_blobs(boxes, peaks, *self._heat_boxes(windows), iou=cfg.cluster_iou)
+            win, weights = self._heat_boxes(windows)
+            boxes, peaks = split_blobs(boxes, peaks, win, weights, iou=cfg.cluster_iou)
+            boxes = vote_boxes(boxes, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
         return self._inside(Detections(boxes, score=peaks), self._picture(as_rgb_uint8(image, name="image")))
 
     def new_tracker(self) -> Tracker:

@@ -30,6 +30,7 @@ __all__ = [
     "add_heat",
     "cluster_boxes",
     "split_blobs",
+    "vote_boxes",
     "apply_threshold",
     "label_heat",
     "blob_boxes",
@@ -624,3 +625,47 @@ def split_blobs(
         out.append(blob)
         out_peaks.append(peaks[j])
     return np.array(out, np.int64).reshape(-1, 4), np.array(out_peaks, np.float64)
+
+
+def vote_boxes(
+    blobs: np.ndarray, boxes: np.ndarray, weights: np.ndarray, *, iou: float, fraction: float, inside: float = 0.7
+) -> np.ndarray:
+    """Move each blob's box towards the boxes its windows vote for (box voting).
+
+    A blob's extent is where heat is high, which a vehicle's windows spread beyond its edges;
+    the boxes the windows stand for (refined to their vehicles, :mod:`~vehicle_detection.refine`)
+    say where the edges are. Each blob box moves ``fraction`` of the way to the weighted mean
+    of the heaviest cluster (:func:`cluster_boxes`) of the window boxes lying mostly inside it.
+
+    Parameters
+    ----------
+    blobs : ndarray, shape (k, 4)
+        Blob boxes in frame pixels (after :func:`split_blobs`).
+    boxes, weights : ndarray, shapes (n, 4) and (n,)
+        The frame's window boxes and heat weights.
+    iou : float
+        Clustering overlap, in (0, 1].
+    fraction : float
+        In [0, 1]: 0 keeps the blob boxes, 1 takes the voted boxes.
+    inside : float
+        Smallest share of a window box's area inside a blob for it to vote there.
+
+    Returns
+    -------
+    ndarray of int64, shape (k, 4)
+        The blob boxes moved; a blob no window box lies in keeps its box.
+    """
+    blobs = np.asarray(blobs, np.int64).reshape(-1, 4)
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    if fraction <= 0 or not len(blobs) or not len(boxes):
+        return blobs
+    weights = np.asarray(weights, np.float64).reshape(-1)
+    share = box_intersection(boxes, blobs.astype(np.float64)) / np.maximum(box_area(boxes), 1.0)[:, None]
+    out = blobs.astype(np.float64)
+    for j in range(len(blobs)):
+        mine = share[:, j] >= inside
+        if mine.any():
+            centres, _ = cluster_boxes(boxes[mine], weights[mine], iou)
+            out[j] += fraction * (centres[0] - out[j])
+    return np.rint(out).astype(np.int64)
+

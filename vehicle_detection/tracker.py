@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 
 from .detections import Detections
 from .geometry import box_iou, inset_boxes, match_boxes
-from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat, split_blobs
+from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat, split_blobs, vote_boxes
 
 if TYPE_CHECKING:
     from .overlays import Overlays
@@ -44,6 +44,10 @@ def _is_int(value: Any) -> bool:
 
 def _is_real(value: Any) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+#: Fields added after model files were first saved; older files load with them off (0).
+_ADDED_FIELDS = ("cluster_iou", "box_vote")
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,10 @@ class TrackerConfig:
         at this IoU), one per vehicle, is split into them (:func:`~.heatmap.split_blobs`): cars
         side by side whose heat touches. For windows refined to their vehicles
         (:mod:`~vehicle_detection.refine`); 0 turns it off. In ``[0, 1]``.
+    box_vote : float, default 0.0
+        With ``cluster_iou``, each box moves this fraction of the way from its blob's extent to
+        the weighted mean of its windows' boxes (:func:`~.heatmap.vote_boxes`), in ``[0, 1]``;
+        0 keeps the blob boxes.
     window_inset : (float, float, float, float), default (-0.05, 0.05, -0.05, 0.15)
         A window adds its heat to its box inset by these fractions (left, top, right, bottom)
         of its width and height, each in ``(-0.5, 0.5)``: where the classifier puts the
@@ -117,6 +125,7 @@ class TrackerConfig:
     peak_fraction: float = 0.3
     split_size: tuple[float, float] = (64, 64)
     cluster_iou: float = 0.0
+    box_vote: float = 0.0
     window_inset: tuple[float, float, float, float] = (-0.05, 0.05, -0.05, 0.15)
 
     def __post_init__(self) -> None:
@@ -139,6 +148,7 @@ class TrackerConfig:
         real("score_gain", lambda v: v >= 0.0, "a finite number >= 0")
         real("peak_fraction", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
         real("cluster_iou", lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
+        real("box_vote", lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
         integer("cell", 1)
         integer("min_hits", 1)
         integer("max_misses", 0)
@@ -163,10 +173,10 @@ class TrackerConfig:
     @classmethod
     def from_dict(cls, d: Any) -> TrackerConfig:
         """The inverse of :meth:`to_dict`; unknown or missing fields raise ``ValueError``, except
-        ``cluster_iou``, which settings saved before it lack (they load with it off)."""
+        ``cluster_iou`` and ``box_vote``, which settings saved before them lack (they load off)."""
         names = {f.name for f in dataclasses.fields(cls)}
-        if isinstance(d, dict) and "cluster_iou" not in d:
-            d = {**d, "cluster_iou": 0.0}
+        if isinstance(d, dict):
+            d = {**{k: 0.0 for k in _ADDED_FIELDS}, **d}
         if not isinstance(d, dict) or set(d) != names:
             got = sorted(d) if isinstance(d, dict) else type(d).__name__
             raise ValueError(f"tracker settings must have exactly the fields {sorted(names)}; got {got}")
@@ -470,6 +480,7 @@ class Tracker:
             cand, peaks, _ = _core_boxes(integrated, labels, blobs, cfg.cell, cfg.peak_fraction, cfg.split_size)
         if cfg.cluster_iou > 0 and len(cand):
             cand, peaks = split_blobs(cand, peaks, win, weights, iou=cfg.cluster_iou)
+            cand = vote_boxes(cand, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
 
         # 4. Association and track life cycle.
         tracks = st.tracks
