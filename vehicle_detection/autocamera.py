@@ -274,10 +274,15 @@ def _slope(seg: np.ndarray) -> np.ndarray:
 
 
 def _crossing(seg: np.ndarray, height: int) -> tuple[float, float] | None:
-    """The length-weighted median crossing of left- and right-leaning segments below it."""
+    """The length-weighted median crossing of left- and right-leaning segments below it.
+
+    Only segments reaching into the lower 40 % of the frame count (the road near the car, not
+    the buildings, bridges and cars beyond).
+    """
     s = _slope(seg)
     length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
-    left, right = np.flatnonzero(s < 0), np.flatnonzero(s > 0)
+    low = np.maximum(seg[:, 1], seg[:, 3]) > 0.6 * height
+    left, right = np.flatnonzero(low & (s < 0)), np.flatnonzero(low & (s > 0))
     if not len(left) or not len(right):
         return None
     # x = a*y + b for each segment
@@ -514,8 +519,12 @@ def estimate_birds_eye(
     first = np.median(np.array(crossings), axis=0)
     half = window // 2
     pooled = [np.concatenate(segs[max(0, i - half) : i + half + 1]) for i in range(n)]  # dashes move along their line
-    found = [fl for fl in (frame_lines(s, first, size, i) for i, s in enumerate(pooled)) if fl is not None]
-    found = [fl for fl in found if abs(fl.vanishing_point[1] - first[1]) < 0.05 * h and abs(fl.vanishing_point[0] - first[0]) < 0.1 * w]
+    for _ in range(2):  # the lane lines of each frame, then again around their own median crossing
+        found = [fl for fl in (frame_lines(s, first, size, i) for i, s in enumerate(pooled)) if fl is not None]
+        found = [fl for fl in found if abs(fl.vanishing_point[1] - first[1]) < 0.05 * h and abs(fl.vanishing_point[0] - first[0]) < 0.1 * w]
+        if len(found) < needed:
+            break
+        first = np.median([fl.vanishing_point for fl in found], axis=0)
     if found:
         width = np.median([fl.width_px for fl in found])
         found = [fl for fl in found if abs(fl.width_px / width - 1) <= 0.2]
