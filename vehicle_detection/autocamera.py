@@ -239,7 +239,7 @@ def paint_mask(rgb: np.ndarray, *, road_rows: tuple[float, float] = (0.5, 0.9), 
     import cv2
 
     h, w = rgb.shape[:2]
-    gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    gray = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY), (5, 5), 0)  # not the noise
     k = max(5, int(round(w * 0.032)) | 1)  # wider than a near lane line
     top_hat = cv2.morphologyEx(gray, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (k, 1)))
     band = top_hat[int(road_rows[0] * h) : max(int(road_rows[1] * h), int(road_rows[0] * h) + 1)]
