@@ -124,6 +124,24 @@ def highway(path: Path, cache: Path | None, figure: Path | None) -> None:
     fresh = sum(lane is not None and lane.fresh for lane in lanes)
     print(f"a lane drawn in {sum(lane is not None for lane in lanes)} of {n} frames ({fresh} fitted on the frame itself, "
           "the others the last good fit, kept up to 5 frames)")
+    # where the lines are visible: the frames whose own paint shows both lines of the lane (no neighbours pooled)
+    from vehicle_detection.autocamera import frame_lines, paint_segments
+
+    w, h = auto.image_size
+    width = np.polyval(estimate.right_line, h) - np.polyval(estimate.left_line, h)
+    visible, agree = [], []
+    for i, f in enumerate(read_frames(path)):
+        fl = frame_lines(paint_segments(f), estimate.vanishing_point, (w, h), i)
+        if fl is None or abs(fl.width_px / width - 1) > 0.2:
+            continue
+        visible.append(i)
+        if lanes[i] is not None:
+            xw = auto.to_warped([[fl.bottom[0], h], [fl.bottom[1], h]])[:, 0]
+            agree.append(abs((auto.vehicle_x - xw.mean()) * auto.xm_per_px - lanes[i].offset_m) <= 0.3)
+    drawn = sum(lanes[i] is not None for i in visible)
+    print(f"  both lines visible (the estimator's own per-frame detection) in {len(visible)} frames: a lane drawn in {drawn} "
+          f"({drawn / max(1, len(visible)):.0%}), its offset within 0.3 m of the visible lines' in {sum(agree)} of them; "
+          f"a lane drawn in {sum(lane is not None for lane in lanes) - drawn} of the {n - len(visible)} other frames")
     radius = np.array([lane.radius_m for lane in lanes if lane is not None])
     offset = np.array([lane.offset_m for lane in lanes if lane is not None])
     print(f"  radius: median {np.median(radius):.0f} m; offset {np.percentile(offset, 5):+.2f} to {np.percentile(offset, 95):+.2f} m (5th to 95th percentile)")

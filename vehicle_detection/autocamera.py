@@ -57,6 +57,7 @@ __all__ = [
     "RoadEstimate",
     "FrameLines",
     "paint_mask",
+    "paint_segments",
     "frame_lines",
     "sample_frames",
     "estimate_birds_eye",
@@ -132,7 +133,8 @@ class RoadEstimate:
         Bootstrap 90 % interval (over frames) of the median: ``vanishing_y_px``,
         ``lane_width_px``, ``ym_per_px``, each a ``(low, high)`` pair.
     camera_height_m, focal_px, pitch_deg : float or None
-        The pinhole camera the estimate implies (see the module docstring).
+        The pinhole camera the estimate implies (see the module docstring); ``pitch_deg`` is
+        positive for a camera looking down (the horizon above the principal point).
     lane_width_m, dash_period_m : float
         The road's assumed dimensions.
     source : str
@@ -206,7 +208,7 @@ class RoadEstimate:
         if self.focal_px is not None:
             lines.append(
                 f"  implied camera: {self.camera_height_m:.2f} m above the road, focal length {self.focal_px:.0f} px, "
-                f"pitch {self.pitch_deg:.1f} deg down (no lens distortion assumed)"
+                f"pitched {abs(self.pitch_deg):.1f} deg {'down' if self.pitch_deg >= 0 else 'up'} (a level pinhole camera)"
             )
         return lines
 
@@ -247,8 +249,19 @@ def paint_mask(rgb: np.ndarray, *, road_rows: tuple[float, float] = (0.5, 0.9), 
     return (top_hat > threshold).view(np.uint8)
 
 
-def _segments(rgb: np.ndarray) -> tuple[np.ndarray, float]:
-    """Hough segments of lane paint ``(n, 4)`` (x1, y1, x2, y2, camera pixels) and the working scale."""
+def paint_segments(rgb: np.ndarray) -> np.ndarray:
+    """Straight segments of lane paint below the top 30 % of the frame, sloping like lane lines.
+
+    Parameters
+    ----------
+    rgb : ndarray of uint8, shape (H, W, 3)
+
+    Returns
+    -------
+    ndarray of float64, shape (n, 4)
+        ``x1, y1, x2, y2`` in the frame's pixels (probabilistic Hough on :func:`paint_mask`, at
+        most 540 rows high); neither near-vertical (poles) nor near-horizontal (a bonnet's edge).
+    """
     import cv2
 
     h, w = rgb.shape[:2]
@@ -259,13 +272,13 @@ def _segments(rgb: np.ndarray) -> tuple[np.ndarray, float]:
     mask[: int(0.3 * hh)] = 0
     lines = cv2.HoughLinesP(mask * 255, 1, np.pi / 180, 20, minLineLength=max(10, hh // 27), maxLineGap=max(5, hh // 54))
     if lines is None:
-        return np.zeros((0, 4)), scale
+        return np.zeros((0, 4))
     seg = lines.reshape(-1, 4).astype(np.float64) / scale
     dx, dy = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = np.abs(dx / dy)
     keep = (dy != 0) & (slope > 0.2) & (slope < 4.0)  # neither poles nor the bonnet's edge
-    return seg[keep], scale
+    return seg[keep]
 
 
 def _slope(seg: np.ndarray) -> np.ndarray:
@@ -512,7 +525,7 @@ def estimate_birds_eye(
     n = len(frames)
     size = (w, h)
     needed = max(min_frames, int(math.ceil(min_share * n)))
-    segs = [_segments(f)[0] for f in frames]
+    segs = [paint_segments(f) for f in frames]
     crossings = [c for c in (_crossing(s, h) for s in segs) if c is not None]
     if len(crossings) < needed:
         return None, RoadEstimate(f"no lane lines seen: lines converging ahead in {len(crossings)} of {n} frames (need {needed})", size, n)
@@ -553,11 +566,10 @@ def estimate_birds_eye(
         period = _frame_period(frames[fl.index], view)
         if period is not None:
             per_frame[fl.index] = dash_period_m / period
-    base = RoadEstimate(None, size, n, used, len(per_frame), (float(vx), float(vy)), left, right, view.xm_per_px,
-                        lane_width_m=lane_width_m, dash_period_m=dash_period_m)
     if len(per_frame) < max(3, needed // 2):
         reason = f"no lane dashes seen (a period in {len(per_frame)} of {len(found)} frames): the scale along the road is unknown"
-        return None, RoadEstimate(reason, size, n, used, len(per_frame), base.vanishing_point, left, right, view.xm_per_px)
+        return None, RoadEstimate(reason, size, n, used, len(per_frame), (float(vx), float(vy)), left, right, view.xm_per_px,
+                                  lane_width_m=lane_width_m, dash_period_m=dash_period_m)
     ym_frames = np.array(list(per_frame.values()))
     ym = float(np.median(ym_frames))
     view = view.replace(ym_per_px=ym)
