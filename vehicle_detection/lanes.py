@@ -148,6 +148,12 @@ class BirdsEye:
             "ym_per_px": float(self.ym_per_px),
         }
 
+    def replace(self, **changes) -> BirdsEye:
+        """A copy with some fields changed."""
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
     @classmethod
     def from_dict(cls, d: dict) -> BirdsEye:
         return cls(d["src"], d["dst"], tuple(d["image_size"]), tuple(d["warped_size"]), float(d["xm_per_px"]), float(d["ym_per_px"]))
@@ -257,12 +263,8 @@ def birds_eye_from_straight(
     top = int(round(top_row * h))
     lefts, rights = zip(*(_straight_lines(f, top) for f in frames))
     left, right = np.mean(lefts, axis=0), np.mean(rights, axis=0)
-    ys = np.array([h, top, top, h], float)
-    src = np.c_[[np.polyval(left, h), np.polyval(left, top), np.polyval(right, top), np.polyval(right, h)], ys]
-    xl, xr = margin * ww, (1 - margin) * ww
-    dst = np.array([[xl, wh], [xl, 0], [xr, 0], [xr, wh]], float)
-    xm = LANE_WIDTH_M / (xr - xl)
-    provisional = BirdsEye(src, dst, (w, h), (ww, wh), xm, 1.0)
+    provisional = _view_from_lines(left, right, (w, h), top, (ww, wh), margin)
+    xl, xr = provisional.dst[0, 0], provisional.dst[3, 0]
     periods = []
     for f in frames:
         binary = lane_binary(provisional.warp(f))
@@ -272,7 +274,24 @@ def birds_eye_from_straight(
                 periods.append(d)
     if not periods:
         raise InputError("no lane dashes found in the straight-road frames; cannot derive metres per pixel along the road")
-    return BirdsEye(src, dst, (w, h), (ww, wh), xm, DASH_PERIOD_M / float(np.median(periods)))
+    return provisional.replace(ym_per_px=DASH_PERIOD_M / float(np.median(periods)))
+
+
+def _view_from_lines(left, right, image_size, top: float, warped_size, margin: float, lane_width_m: float = LANE_WIDTH_M) -> BirdsEye:
+    """The view that maps the quadrilateral between two lane lines and two rows onto a rectangle.
+
+    ``left`` and ``right`` are ``(a, b)`` of ``x = a*y + b`` in camera pixels; the source corners
+    are where they cross the rows ``top`` and the bottom row; the lines land at ``margin`` and
+    ``1 - margin`` of the warped width, ``lane_width_m`` apart. Metres per pixel along the road
+    are left at 1.0 (for the caller to measure).
+    """
+    w, h = image_size
+    ww, wh = warped_size
+    ys = np.array([h, top, top, h], float)
+    src = np.c_[[np.polyval(left, h), np.polyval(left, top), np.polyval(right, top), np.polyval(right, h)], ys]
+    xl, xr = margin * ww, (1 - margin) * ww
+    dst = np.array([[xl, wh], [xl, 0], [xr, 0], [xr, wh]], float)
+    return BirdsEye(src, dst, (w, h), (ww, wh), lane_width_m / (xr - xl), 1.0)
 
 
 # --- lane pixels and fits ----------------------------------------------------------------------
