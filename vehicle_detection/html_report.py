@@ -283,7 +283,7 @@ def _boxes_per_frame(detections: Detections, n_frames: int):
     ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_xlabel("frame")
     ax.set_ylabel("boxes")
-    ax.set_title(f"boxes per frame (mean {counts.mean() if len(counts) else 0:.2f}, frames without any: {int((counts == 0).sum())})")
+    ax.set_title("boxes per frame")
     ax.grid(alpha=0.3)
     return fig
 
@@ -317,7 +317,7 @@ def _lanes_figure(lanes: Mapping[str, np.ndarray], n_frames: int):
     if np.isfinite(shown).any():
         top.set_yscale("log")
     top.set_ylabel("radius (m)")
-    top.set_title(f"lanes: radius of curvature and offset (no lane in {int(np.isnan(radius).sum())} of {len(frames)} frames)")
+    top.set_title("lanes: radius of curvature and offset from the lane centre")
     bottom.plot(frames, lanes["offset_m"], color="C2", lw=1.2)
     bottom.axhline(0.0, color="0.5", lw=0.8)
     bottom.set_ylabel("offset (m, + right)")
@@ -531,15 +531,31 @@ def render_html_report(
 
     body.append("<h2>Boxes per frame</h2>")
     body.append(_figure_img(_boxes_per_frame(detections, frames), "boxes per frame"))
+    counts = np.bincount(detections.frame, minlength=frames) if len(detections) else np.zeros(frames, np.int64)
+    mean = f"{counts.mean():.2f}" if frames else "no"
+    body.append(f'<p class="note">{mean} boxes per frame on average; frames without any: {int((counts == 0).sum())}.</p>')
 
     if spans and "distance_m" in detections.data:
         body.append("<h2>Distances</h2>")
         body.append(_figure_img(_distances(detections, spans, frames), "distance of each tracked vehicle"))
+        dist = np.asarray(detections.data["distance_m"], np.float64)
+        known = np.isfinite(dist)
+        note = f"distance known for {int(known.sum())} of {len(dist)} boxes"
+        if known.any():
+            note += f", {dist[known].min():.1f} to {dist[known].max():.1f} m"
+        body.append(f'<p class="note">{note}.</p>')
 
     if lane_table is not None:
         body.append("<h2>Lanes</h2>")
         if len(lane_table["frame"]):
             body.append(_figure_img(_lanes_figure(lane_table, frames), "radius of curvature and offset"))
+            radius, offset = lane_table["curvature_m"], lane_table["offset_m"]
+            found = np.isfinite(radius)
+            note = f"no lane in {int((~found).sum())} of {len(radius)} frames"
+            if found.any():
+                note += (f"; median radius {np.median(radius[found]):,.0f} m, offset {np.nanmin(offset):+.2f} to "
+                         f"{np.nanmax(offset):+.2f} m (+ right of the lane centre)")
+            body.append(f'<p class="note">{note}.</p>')
         else:
             body.append('<p class="note">The lanes table has no rows.</p>')
 
