@@ -276,8 +276,9 @@ def _boxes_per_frame(detections: Detections, n_frames: int):
     counts = np.bincount(detections.frame, minlength=n_frames) if len(detections) else np.zeros(n_frames, np.int64)
     fig = Figure(figsize=(9.0, 2.6), layout="constrained")
     ax = fig.add_subplot()
-    ax.step(np.arange(len(counts)), counts, where="mid", color="C0")
-    ax.fill_between(np.arange(len(counts)), counts, step="mid", alpha=0.25, color="C0")
+    edges = np.arange(len(counts) + 1) - 0.5  # frame i spans [i - 0.5, i + 0.5], as on the timeline
+    ax.stairs(counts, edges, fill=True, alpha=0.25, color="C0")
+    ax.stairs(counts, edges, color="C0")
     ax.set_xlim(-0.5, max(len(counts), 1) - 0.5)
     ax.set_ylim(0, max(int(counts.max(initial=0)), 1) + 0.5)
     ax.yaxis.get_major_locator().set_params(integer=True)
@@ -623,8 +624,14 @@ def write_html_report(
 
     Examples
     --------
-    >>> import vehicle_detection as vd
-    >>> vd.write_html_report("/tmp/report.html", "clip_boxes.csv", video="clip.mp4")  # doctest: +SKIP
+    >>> import tempfile
+    >>> d = Detections([[10, 10, 74, 74], [12, 10, 76, 74]], track_id=[0, 0], frame=[3, 4])
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     page = write_html_report(Path(tmp) / "report.html", d, n_frames=10).read_text()
+    >>> page.count("<img"), "frames without any: 8" in page
+    (2, True)
+
+    With the run's files: ``write_html_report("report.html", "clip_boxes.csv", video="clip.mp4")``.
     """
     from ._files import check_output_path
 
