@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import importlib.util
 import io
 import json
 import re
@@ -22,7 +23,9 @@ from vehicle_detection.errors import InputError, MissingDependencyError, OutputE
 from vehicle_detection.html_report import CROP_HEIGHT, RunSummary, render_html_report, summarize, track_spans, write_html_report
 from vehicle_detection.tables import read_lanes_csv, write_boxes_csv, write_lanes_csv
 
-pytest.importorskip("matplotlib")
+needs_matplotlib = pytest.mark.skipif(
+    importlib.util.find_spec("matplotlib") is None, reason='matplotlib not installed (pip install -e ".[test]")'
+)
 
 N_FRAMES = 30
 
@@ -110,6 +113,7 @@ def test_lanes_csv_round_trip_and_errors(tmp_path):
 # --- the page ------------------------------------------------------------------------------------
 
 
+@needs_matplotlib
 def test_report_has_every_section_and_crops_from_the_right_frames(grey_video, tmp_path):
     d = two_tracks()
     boxes = write_boxes_csv(tmp_path / "b.csv", d)
@@ -138,6 +142,7 @@ def test_report_has_every_section_and_crops_from_the_right_frames(grey_video, tm
     assert [int(c) for c in captions] == expected
 
 
+@needs_matplotlib
 def test_report_without_video_lists_the_boxes_and_counts_frames_up_to_the_last(tmp_path):
     page = render_html_report(two_tracks())
     assert "No video given" in page and "21 (at least: up to the last frame with a box)" in page
@@ -147,6 +152,7 @@ def test_report_without_video_lists_the_boxes_and_counts_frames_up_to_the_last(t
     assert "the boxes are not tracked" in untracked and "frames without any: 8" in untracked
 
 
+@needs_matplotlib
 def test_report_with_distances_and_lane_rows(tmp_path):
     d = two_tracks()
     d = d.replace(data={"distance_m": np.linspace(30, 10, len(d)), "relative_speed_mps": np.zeros(len(d))})
@@ -154,6 +160,7 @@ def test_report_with_distances_and_lane_rows(tmp_path):
     assert "<h2>Distances" in page and "<h2>Lanes" in page and "no lane in 1 of 2 frames" in page
 
 
+@needs_matplotlib
 def test_report_refuses_a_video_shorter_than_the_boxes(grey_video, tmp_path):
     d = Detections([[0, 0, 9, 9]], track_id=[0], frame=N_FRAMES + 5)
     out = tmp_path / "r.html"
@@ -162,6 +169,7 @@ def test_report_refuses_a_video_shorter_than_the_boxes(grey_video, tmp_path):
     assert list(tmp_path.iterdir()) == []  # nothing half-written
 
 
+@needs_matplotlib
 def test_report_never_overwrites_without_asking(tmp_path):
     out = tmp_path / "r.html"
     out.write_text("keep")
@@ -229,6 +237,7 @@ def browser_check(page: str, folder: Path) -> tuple[int, int]:
     return int(found.group(1)), int(found.group(2))
 
 
+@needs_matplotlib
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (Debian: apt-get install chromium)")
 def test_report_loads_in_chromium_and_every_image_decodes(grey_video, tmp_path):
     d = two_tracks().replace(data={"distance_m": np.linspace(30, 10, 16), "relative_speed_mps": np.zeros(16)})
