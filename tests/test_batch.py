@@ -202,7 +202,8 @@ def test_supervision_round_trip():
     d = Detections([[10, 20, 74, 84], [100, 20, 164, 84]], score=[0.5, 2.0], track_id=[3, 7], frame=[4, 5])
     s = d.to_supervision()
     assert isinstance(s, sv.Detections) and len(s) == 2
-    assert s.xyxy.tolist() == d.xyxy.tolist() and s.tracker_id.tolist() == [3, 7] and s.confidence.tolist() == [0.5, 2.0]
+    assert s.xyxy.tolist() == d.xyxy.tolist() and s.tracker_id.tolist() == [3, 7]
+    assert s.confidence.tolist() == pytest.approx([2 / 3, 5 / 6]) and s.data["score"].tolist() == [0.5, 2.0]
     assert Detections.from_supervision(s) == d
     untracked = Detections([[1, 2, 30, 40]])
     assert Detections.from_supervision(untracked.to_supervision()) == untracked

@@ -75,6 +75,7 @@ _API = {
     "probe_video": "video",
     "VideoWriter": "video",
     "read_boxes_csv": "tables",
+    "read_lanes_csv": "tables",
     "write_boxes_csv": "tables",
     "write_mot": "formats",
     "write_coco": "formats",
@@ -83,6 +84,10 @@ _API = {
     "write_lanes_csv": "tables",
     "draw_boxes": "drawing",
     "draw_detections": "drawing",
+    # a look at a whole run
+    "write_html_report": "html_report",
+    "RunSummary": "html_report",
+    "summarize": "html_report",
     # evaluation
     "Annotations": "evaluate",
     "FrameLabels": "evaluate",
@@ -119,6 +124,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .detections import Detections
     from .detector import Detector
     from .drawing import draw_boxes, draw_detections
+    from .html_report import RunSummary, summarize, write_html_report
     from .evaluate import Annotations, FrameLabels, average_precision, evaluate_detections, evaluation_report, load_annotations, match_frame
     from .features import FeatureConfig, extract_features
     from .geometry import box_iou, match_boxes
@@ -128,7 +134,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
     from .horizon import estimate_horizon, vanishing_row
     from .overlays import active_area, find_overlays, static_mask
     from .tracker import Tracker, TrackerConfig
-    from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
+    from .tables import read_boxes_csv, read_lanes_csv, write_boxes_csv, write_lanes_csv
     from .tracking_metrics import tracking_scores
     from .pipeline import process_video
     from .batch import InputResult, detect_many

@@ -261,10 +261,51 @@ class Detections:
         )
 
     # --- other libraries -------------------------------------------------------------------------
+    def to_pandas(self):
+        """This table as a ``pandas.DataFrame`` (needs ``pip install "vehicle-detection[pandas]"``).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per box, in order, with the columns of the boxes CSV: ``frame``, ``x1``,
+            ``y1``, ``x2``, ``y2``, ``track_id`` (int64; -1 for every row when untracked) and
+            ``score`` (float64), then each ``data`` column under its name (a column of shape
+            ``(n, k)`` as ``name_0`` ... ``name_{k-1}``).
+
+        Raises
+        ------
+        MissingDependencyError
+            If pandas is not installed.
+
+        Examples
+        --------
+        >>> d = Detections([[10, 20, 74, 84]], score=[0.5], track_id=[3], frame=7)
+        >>> d.to_pandas().to_dict("records")
+        [{'frame': 7, 'x1': 10, 'y1': 20, 'x2': 74, 'y2': 84, 'track_id': 3, 'score': 0.5}]
+        """
+        from ._optional import require
+
+        pd = require("pandas", "pandas", "Detections.to_pandas()")
+        clash = [k for k in self.data if k in ("frame", "x1", "y1", "x2", "y2", "track_id", "score")]
+        if clash:
+            raise ValueError(f"data column {clash[0]!r} has the name of a main column")
+        columns: dict[str, np.ndarray] = {"frame": self.frame}
+        columns.update({name: self.xyxy[:, j] for j, name in enumerate(("x1", "y1", "x2", "y2"))})
+        columns["track_id"] = self.track_id if self.track_id is not None else np.full(len(self), -1, np.int64)
+        columns["score"] = self.score
+        for key, values in self.data.items():
+            if values.ndim == 1:
+                columns[key] = values
+            else:
+                flat = values.reshape(len(self), -1)
+                columns.update({f"{key}_{j}": flat[:, j] for j in range(flat.shape[1])})
+        return pd.DataFrame({k: np.array(v) for k, v in columns.items()})
+
     def to_supervision(self):
         """This table as a ``supervision.Detections`` (needs ``pip install "vehicle-detection[supervision]"``).
 
-        See :func:`vehicle_detection.formats.to_supervision`.
+        ``confidence`` is the score mapped into 0..1 (:func:`~vehicle_detection.formats.score_to_confidence`);
+        the score itself travels in ``data["score"]``. See :func:`vehicle_detection.formats.to_supervision`.
         """
         from .formats import to_supervision
 

@@ -31,7 +31,7 @@ from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
-from .images import as_rgb_uint8
+from .images import as_image, as_rgb_uint8
 from .overlays import Overlays, active_area, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat
@@ -248,12 +248,15 @@ class Detector:
         cfg = self.config.tracker
         return inset_boxes(boxes.xyxy, cfg.window_inset), window_heat(boxes.score, cfg.score_gain)
 
-    def detect_image(self, image: np.ndarray, windows: Detections | None = None) -> Detections:
-        """Vehicles in one RGB ``uint8`` image ``(H, W, 3)``: one box per heat blob.
+    def detect_image(self, image, windows: Detections | None = None) -> Detections:
+        """Vehicles in one image: one box per heat blob.
 
         Parameters
         ----------
-        image : ndarray of uint8, shape (H, W, 3)
+        image : ndarray of uint8, shape (H, W, 3), PIL.Image.Image, str or path-like
+            An RGB ``uint8`` array, a Pillow image, or an image file's path; converted once by
+            :func:`~vehicle_detection.images.as_image` (grey and RGBA become RGB; floats, and
+            anything else, are refused with an ``InputError`` saying what is expected).
         windows : Detections, optional
             The image's hot windows when already computed (:meth:`windows`), to search once.
             An image is searched where the plan says (one frame is too little to estimate the
@@ -266,6 +269,7 @@ class Detector:
         Detections
             One box per vehicle with the peak heat of its blob as ``score``; untracked.
         """
+        image = as_image(image)
         if windows is None:
             windows = self.windows(image)
         heat = self.heat(image.shape, windows)
@@ -278,7 +282,7 @@ class Detector:
             win, weights = self._heat_boxes(windows)
             boxes, peaks = split_blobs(boxes, peaks, win, weights, iou=cfg.cluster_iou)
             boxes = vote_boxes(boxes, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
-        return self._inside(Detections(boxes, score=peaks), self._picture(as_rgb_uint8(image, name="image")))
+        return self._inside(Detections(boxes, score=peaks), self._picture(image))
 
     def new_tracker(self) -> Tracker:
         """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""

@@ -60,8 +60,9 @@ def draw_boxes(
     ----------
     image : ndarray of uint8, shape (H, W, 3)
         RGB image; it is not modified.
-    boxes : array_like, shape (n, 4)
+    boxes : array_like, shape (n, 4), or Detections
         ``[x1, y1, x2, y2]`` (x2, y2 exclusive); float coordinates are rounded to whole pixels.
+        A :class:`Detections` gives its ``xyxy`` (:func:`draw_detections` also labels them).
         The rectangle's outer edge covers exactly the box's pixels; parts outside the image are
         clipped.
     color : sequence of 3 int, default (0, 255, 0)
@@ -90,6 +91,8 @@ def draw_boxes(
     if isinstance(thickness, bool) or not isinstance(thickness, (int, np.integer)) or thickness < 1:
         raise ValueError(f"thickness must be an integer >= 1; got {thickness!r}")
     thickness = int(thickness)
+    if isinstance(boxes, Detections):
+        boxes = boxes.xyxy
     box_arr = np.rint(as_boxes(boxes, "boxes"))
     if labels is not None:
         labels = [str(label) for label in labels]

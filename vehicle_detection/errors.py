@@ -14,6 +14,7 @@ __all__ = [
     "ModelError",
     "OutputError",
     "DownloadError",
+    "MissingDependencyError",
 ]
 
 
@@ -58,3 +59,12 @@ class DownloadError(VehicleDetectionError, OSError):
 
     exit_code = 6
 
+
+
+class MissingDependencyError(VehicleDetectionError, ImportError):
+    """A feature needs an optional package that is not installed (exit status 2, like a usage error).
+
+    The message names the feature, the package and the extra that installs it.
+    """
+
+    exit_code = 2

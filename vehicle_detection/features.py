@@ -753,9 +753,15 @@ def hog_image(channel: np.ndarray, config: FeatureConfig) -> np.ndarray:
     Returns
     -------
     ndarray of float64, shape (H, W)
-    """
-    from skimage.feature import hog
 
+    Raises
+    ------
+    MissingDependencyError
+        Without scikit-image (``pip install "vehicle-detection[notebooks]"``).
+    """
+    from ._optional import require
+
+    hog = require("skimage.feature", "notebooks", "the HOG picture (hog_image)").hog
     if config.hog_sqrt:
         channel = SQRT_LUT[channel]
     _, picture = hog(

@@ -56,6 +56,7 @@ __all__ = [
     "read_image",
     "decode_image",
     "as_rgb_uint8",
+    "as_image",
     "write_image",
     "list_images",
 ]
@@ -331,6 +332,55 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     if arr.shape[0] == 0 or arr.shape[1] == 0:
         raise InputError(f"{name}: empty image of shape {arr.shape}")
     return arr
+
+
+def as_image(image, *, name: str = "image") -> np.ndarray:
+    """An image given as a file path, a Pillow image or an array, as RGB ``uint8`` ``(H, W, 3)``.
+
+    What :meth:`~vehicle_detection.detector.Detector.detect_image` accepts: the one conversion at
+    the API edge.
+
+    Parameters
+    ----------
+    image : str, path-like, PIL.Image.Image or array_like
+        A file path is read with :func:`read_image`; a Pillow image is converted by the rules of
+        the module docstring (its EXIF orientation applied, as :func:`read_image` does); an array
+        goes through :func:`as_rgb_uint8`.
+    name : str
+        Used in error messages for Pillow images and arrays.
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W, 3)
+
+    Raises
+    ------
+    InputError
+        If the file cannot be read as an image, the image breaks the rules above, or ``image`` is
+        none of these types (bytes, say: decode them with :func:`decode_image`).
+
+    Examples
+    --------
+    >>> from PIL import Image
+    >>> as_image(Image.new("L", (64, 32), 200)).shape
+    (32, 64, 3)
+    """
+    if isinstance(image, (str, os.PathLike)):
+        return read_image(image)
+    if isinstance(image, Image.Image):
+        try:
+            arr = _orient(_from_pil(image, name), _exif_orientation(image))
+        except (OSError, SyntaxError) as exc:  # a lazily opened file that is truncated or corrupt
+            raise InputError(f"{name}: corrupt or truncated image: {exc}") from None
+        check_frame_shape(arr.shape[0], arr.shape[1], name)
+        return arr
+    if isinstance(image, (bytes, bytearray, memoryview)):
+        raise InputError(f"{name}: got {type(image).__name__}; pass a file path, a PIL image or an array (decode_image decodes bytes)")
+    if not isinstance(image, np.ndarray) and not hasattr(image, "__array__") and not isinstance(image, (list, tuple)):
+        raise InputError(
+            f"{name}: expected an RGB uint8 array of shape (H, W, 3), a PIL image or an image file path; got {type(image).__name__}"
+        )
+    return as_rgb_uint8(image, name=name)
 
 
 @functools.lru_cache(maxsize=None)

@@ -21,10 +21,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.colors import ListedColormap, PowerNorm
-from matplotlib.patches import Rectangle
+
+from ._optional import require
+
+# matplotlib is not part of the command-line install: importing this module says which extra has it.
+plt = require("matplotlib.pyplot", "notebooks", "the figures (vehicle_detection.plots)")
+from matplotlib.colors import ListedColormap, PowerNorm  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 
 __all__ = [
     "OUTPUT_ENV",

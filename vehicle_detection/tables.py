@@ -47,6 +47,7 @@ __all__ = [
     "write_boxes_csv",
     "read_boxes_csv",
     "write_lanes_csv",
+    "read_lanes_csv",
 ]
 
 BOXES_CSV_HEADER = "frame,x1,y1,x2,y2,track_id,score"
@@ -252,3 +253,54 @@ def write_lanes_csv(
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8", newline="\n")
     return Path(path)
+
+
+def read_lanes_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a lanes CSV (:func:`write_lanes_csv`), with validation.
+
+    Parameters
+    ----------
+    path : path-like
+        CSV with the header ``frame,curvature_m,offset_m`` and one row per frame (a UTF-8
+        byte-order mark and CRLF line ends are accepted; blank lines only at the end).
+
+    Returns
+    -------
+    dict of str to ndarray, shape (n,)
+        ``"frame"`` (int64, >= 0, increasing), ``"curvature_m"`` (the radius of curvature in
+        metres) and ``"offset_m"`` (metres right of the lane centre), float64, NaN where the
+        field is empty (no lane found).
+
+    Raises
+    ------
+    InputError
+        If the file is missing or unreadable, the header differs, or a line is malformed or out
+        of order; the message names the file and the 1-based line number.
+    """
+    path = Path(path)
+    lines = read_text(path, "lanes file", "CSV", encoding="utf-8-sig").split("\n")
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines or lines[0] != LANES_CSV_HEADER:
+        got = repr(lines[0]) if lines else "an empty file"
+        raise InputError(f"{path}: line 1: header is {got}; expected {LANES_CSV_HEADER!r}")
+    frames, values = [], []
+    for lineno, line in enumerate(lines[1:], start=2):
+        fields = line.split(",")
+        if len(fields) != 3:
+            raise InputError(f"{path}: line {lineno}: expected 3 fields ({LANES_CSV_HEADER}), got {len(fields)}")
+        if not _INT.fullmatch(fields[0]) or int(fields[0]) < 0:
+            raise InputError(f"{path}: line {lineno}: frame {fields[0]!r} is not an integer >= 0")
+        frame = int(fields[0])
+        if frames and frame <= frames[-1]:
+            raise InputError(f"{path}: line {lineno}: frame {frame} does not follow frame {frames[-1]}")
+        row = []
+        for name, text in zip(("curvature_m", "offset_m"), fields[1:]):
+            value = float("nan") if text == "" else float(text) if _FLOAT.fullmatch(text) else None
+            if value is None or np.isinf(value):
+                raise InputError(f"{path}: line {lineno}: {name} {text!r} is not a number (leave it empty when unknown)")
+            row.append(value)
+        frames.append(frame)
+        values.append(row)
+    cols = np.array(values, np.float64).reshape(-1, 2)
+    return {"frame": np.array(frames, np.int64), "curvature_m": cols[:, 0], "offset_m": cols[:, 1]}

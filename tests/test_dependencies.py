@@ -1,0 +1,74 @@
+"""The command-line install has no matplotlib and no scikit-image; what needs one names its extra."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PLOTTING = ("matplotlib", "skimage", "fontTools")
+
+
+def run(code: str) -> str:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip()
+
+
+def test_detecting_imports_no_plotting_library(tmp_path):
+    code = (
+        "import sys\n"
+        "import vehicle_detection as vd\n"
+        "found = vd.Detector().detect_image('test_images/test1.jpg')\n"
+        "vd.write_boxes_csv(%r, found)\n"
+        "from vehicle_detection.cli import main\n"
+        "code = main(['detect', 'test_images/test1.jpg', '--out', %r, '--boxes', %r])\n"
+        "assert code == 0, code\n"
+        "print(len(found), sorted(m for m in %r if m in sys.modules))\n"
+    ) % (str(tmp_path / "a.csv"), str(tmp_path / "o.jpg"), str(tmp_path / "o.csv"), PLOTTING)
+    n, loaded = run(code).splitlines()[-1].split(" ", 1)  # after the CLI's own lines
+    assert int(n) > 0 and (tmp_path / "o.jpg").is_file()
+    assert loaded == "[]"
+
+
+@pytest.mark.parametrize(
+    ("blocked", "code", "message"),
+    [
+        ("matplotlib", "import vehicle_detection.plots",
+         'the figures (vehicle_detection.plots) needs matplotlib, which is not installed: pip install "vehicle-detection[notebooks]"'),
+        ("skimage", "import numpy as np\nfrom vehicle_detection.features import FeatureConfig, hog_image\n"
+                    "hog_image(np.zeros((64, 64), np.uint8), FeatureConfig())",
+         'the HOG picture (hog_image) needs skimage, which is not installed: pip install "vehicle-detection[notebooks]"'),
+        ("pandas", "from vehicle_detection.detections import Detections\nDetections([[0, 0, 9, 9]]).to_pandas()",
+         'Detections.to_pandas() needs pandas, which is not installed: pip install "vehicle-detection[pandas]"'),
+    ],
+)
+def test_a_missing_optional_library_names_its_extra(blocked, code, message):
+    wrapped = (
+        f"import sys; sys.modules[{blocked!r}] = None\n"
+        "from vehicle_detection.errors import MissingDependencyError\n"
+        "try:\n" + "".join(f"    {line}\n" for line in code.splitlines()) +
+        "except MissingDependencyError as e:\n"
+        "    print(e)\n"
+    )
+    assert run(wrapped) == message
+
+
+def test_pyproject_extras():
+    tomllib = pytest.importorskip("tomllib")
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+
+    def names(reqs):
+        return {r.split(">")[0].split("=")[0].split("[")[0].split("<")[0].strip().lower() for r in reqs}
+
+    core = names(project["dependencies"])
+    extras = {k: names(v) for k, v in project["optional-dependencies"].items()}
+    assert not core & {"matplotlib", "scikit-image"}
+    assert {"jupyterlab", "ipykernel", "ipywidgets", "matplotlib", "scikit-image"} <= extras["notebooks"]
+    assert "jupyter" not in extras["notebooks"]
+    assert extras["report"] == {"matplotlib"}
+    # the README's test command installs what the tests import
+    assert {"matplotlib", "scikit-image", "pandas"} <= extras["test"]
