@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from ._files import atomic_output
+from ._files import atomic_output, input_file
 from .config import DetectorConfig
 from .data import Dataset
 from .errors import ModelError
@@ -271,8 +271,7 @@ class VehicleClassifier:
             file and the problem.
         """
         path = Path(path)
-        if not path.is_file():
-            raise ModelError(f"{path}: model file not found")
+        input_file(path, "model file", ModelError)
         data = _read_npz(path)
         meta_arr = data["meta"]
         if meta_arr.dtype != np.uint8 or meta_arr.ndim != 1:
