@@ -72,6 +72,25 @@ def _version_tuple(v: str) -> tuple[int, ...]:
     return tuple(out)
 
 
+#: Largest magnitude of any number of a model's linear maps, and of its folded weights and bias
+#: (trained ones stay far below: the embedded model's largest is 1,802, a feature mean); far
+#: larger ones overflow the float32 scores.
+MAX_MODEL_VALUE = 1e9
+
+
+def _implausible_weights(arrays: dict[str, np.ndarray]) -> str:
+    """Why the arrays of a model file cannot be a trained model ("" if they can)."""
+    for name, a in arrays.items():
+        top = float(np.max(np.abs(a))) if a.size else 0.0
+        if top > MAX_MODEL_VALUE:
+            return f"array {name} holds {top:.3g}; a model's numbers are at most {MAX_MODEL_VALUE:g} in magnitude"
+    weights = arrays["coef"] / arrays["scaler_scale"]
+    bias = float(arrays["intercept"][0] - np.dot(weights, arrays["scaler_mean"]))
+    if np.max(np.abs(weights)) > MAX_MODEL_VALUE or not abs(bias) <= MAX_MODEL_VALUE:
+        return f"coef / scaler_scale reaches {np.max(np.abs(weights)):.3g} and the bias {bias:.3g}; at most {MAX_MODEL_VALUE:g} in magnitude"
+    return ""
+
+
 def _digest(arrays: dict[str, np.ndarray], header: dict) -> str:
     """SHA-256 over the arrays and the header (minus the digest itself), canonically encoded."""
     h = hashlib.sha256()
@@ -287,7 +306,9 @@ class VehicleClassifier:
         version = meta.get("format_version")
         if version not in (1, MODEL_FORMAT_VERSION):
             raise ModelError(f"{path}: model format version {version!r} is not supported (expected 1 or {MODEL_FORMAT_VERSION})")
-        lib = str(meta.get("library_version", "?"))
+        lib = meta.get("library_version", "?")
+        if not isinstance(lib, str) or len(lib) > 64:
+            raise ModelError(f"{path}: library_version in the header must be a version string")
         if _version_tuple(lib) > _version_tuple(__version__):
             raise ModelError(f"{path}: trained by vehicle-detection {lib}, newer than this {__version__}; upgrade the library")
         if meta.get("feature_format") != FEATURE_FORMAT:
@@ -318,6 +339,9 @@ class VehicleClassifier:
             arrays.update(box_coef=regressor.coef, box_intercept=regressor.intercept)
         if np.any(arrays["scaler_scale"] <= 0):
             raise ModelError(f"{path}: scaler_scale must be positive")
+        problem = _implausible_weights(arrays)
+        if problem:
+            raise ModelError(f"{path}: {problem}")
         if meta.get("sha256") != _digest(arrays, meta):
             raise ModelError(f"{path}: contents do not match the checksum in the header (file altered or damaged)")
         metrics = meta.get("metrics") or {}
