@@ -717,3 +717,236 @@ def test_search_refuses_absurd_arrays():
 
     with pytest.raises(InputError, match="too wide"):
         Detector().detect_image(np.zeros((10, 20000, 3), np.uint8))
+
+
+# ----------------------------------------------------------------------------------------------
+# o. Camera files: malformed fields and absurd (finite) values are refused with exit 3, one line
+#    naming the file and the field, before any output
+# ----------------------------------------------------------------------------------------------
+
+# The project camera as `calibrate camera_cal --straight straight_lines1.jpg straight_lines2.jpg`
+# gives it (rounded): every case below changes one field of it.
+CAMERA = {
+    "format": "vehicle-detection camera 1",
+    "image_size": [1280, 720],
+    "matrix": [[1157.0213, 0.0, 665.9501], [0.0, 1152.3001, 388.1435], [0.0, 0.0, 1.0]],
+    "distortion": [-0.239189, -0.076758, -0.000809, -0.000231, 0.092732],
+    "rms": 0.8311,
+    "images_used": ["calibration2.jpg", "calibration3.jpg"],
+    "images_cropped": [],
+    "images_skipped": {"calibration1.jpg": "no full 9x6 chessboard found"},
+    "per_image_rms": {"calibration2.jpg": 1.26, "calibration3.jpg": 0.61},
+    "birds_eye": {
+        "src": [[210.98, 720.0], [596.85, 450.0], [686.53, 450.0], [1105.46, 720.0]],
+        "dst": [[160.0, 360.0], [160.0, 0.0], [480.0, 0.0], [480.0, 360.0]],
+        "image_size": [1280, 720],
+        "warped_size": [640, 360],
+        "xm_per_px": 0.0115625,
+        "ym_per_px": 0.0941176,
+    },
+}
+
+
+def _set(path: str, value):
+    """A change of CAMERA: ``"matrix.0.0"`` -> ``d["matrix"][0][0] = value`` (None value with a
+    trailing ``!`` deletes the key)."""
+
+    def change(d):
+        *parents, last = path.rstrip("!").split(".")
+        for key in parents:
+            d = d[int(key) if key.isdigit() else key]
+        if path.endswith("!"):
+            del d[last]
+        else:
+            d[int(last) if last.isdigit() else last] = value
+
+    return change
+
+
+IMPLAUSIBLE = "implausible camera file: "
+MALFORMED = "malformed camera file: "
+CAMERA_CASES = [
+    # focal lengths within 0.1 to 10 times the image width, pixels about square
+    ("fx_1e308", _set("matrix.0.0", 1e308), IMPLAUSIBLE + "matrix[0][0] (fx) = 1e+308 px is outside 0.1 to 10 times the image width (128 to 12800 px for 1280x720 images)"),
+    ("fy_1px", _set("matrix.1.1", 1.0), IMPLAUSIBLE + "matrix[1][1] (fy) = 1 px is outside 0.1 to 10 times"),
+    ("fx_negative", _set("matrix.0.0", -1157.0), IMPLAUSIBLE + "matrix[0][0] (fx) = -1157 px is outside"),
+    ("fx_zero", _set("matrix.0.0", 0), IMPLAUSIBLE + "matrix[0][0] (fx) = 0 px is outside"),
+    ("fy_3_fx", _set("matrix.1.1", 3500.0), IMPLAUSIBLE + "matrix[1][1] / matrix[0][0] (fy / fx) = 3.03 is outside 0.5 to 2"),
+    # the principal point inside the image, a pinhole matrix
+    ("cx_outside", _set("matrix.0.2", 5000), IMPLAUSIBLE + "matrix[0][2] (cx) = 5000: the principal point is outside the image (0 to 1280 px)"),
+    ("cy_negative", _set("matrix.1.2", -300), IMPLAUSIBLE + "matrix[1][2] (cy) = -300: the principal point is outside the image (0 to 720 px)"),
+    ("skew", _set("matrix.0.1", 5000), IMPLAUSIBLE + "matrix[0][1] (skew) = 5000 must be 0"),
+    ("matrix_1_0", _set("matrix.1.0", 3), IMPLAUSIBLE + "matrix[1][0] = 3 must be 0"),
+    ("last_row_2", _set("matrix.2", [0, 0, 2]), IMPLAUSIBLE + "matrix[2] = [0.0, 0.0, 2.0] must be [0, 0, 1]"),
+    # distortion that keeps half the undistorted frame inside the image and never folds
+    ("pincushion_k1_50", _set("distortion.0", 50.0), "of the undistorted frame from outside the image (at most 50% may be)"),
+    ("radial_fold_k1", _set("distortion.0", -5.0), "folds the image"),
+    ("radial_fold_k3", _set("distortion.4", -3.0), "folds the image"),
+    ("tangential_fold_p1", _set("distortion.2", 1.0), "folds the image over near"),
+    ("distortion_3_numbers", _set("distortion", [0, 0, 0]), MALFORMED + "distortion has 3 coefficients; OpenCV's models have 4, 5, 8, 12 or 14"),
+    # the bird's-eye transform: invertible, in order, inside its frames, plausible metres
+    ("be_collinear", _set("birds_eye.src", [[0, 720], [100, 600], [200, 480], [300, 360]]), IMPLAUSIBLE + "birds_eye.src = [[0.0, 720.0], [100.0, 600.0], [200.0, 480.0], [300.0, 360.0]] must be bottom-left"),
+    ("be_degenerate", _set("birds_eye.src", [[600, 720], [600, 719], [601, 719], [601, 720]]), IMPLAUSIBLE + "birds_eye.src = [[600.0, 720.0], [600.0, 719.0], [601.0, 719.0], [601.0, 720.0]] must be a convex quadrilateral covering at least 1% of the frame"),
+    ("be_upside_down", _set("birds_eye.src", [[596.85, 450.0], [210.98, 720.0], [1105.46, 720.0], [686.53, 450.0]]), "must be bottom-left, top-left, top-right, bottom-right"),
+    ("be_widening", _set("birds_eye.src", [[500, 720], [100, 450], [1180, 450], [780, 720]]), IMPLAUSIBLE + "birds_eye.src = [[500.0, 720.0], [100.0, 450.0], [1180.0, 450.0], [780.0, 720.0]]: the lane must narrow towards its top"),
+    ("be_src_outside", _set("birds_eye.src", [[-5000, 720], [596.85, 450.0], [686.53, 450.0], [9000, 720]]), "must lie inside the 1280x720 frame (or at most 640 px beyond its sides)"),
+    ("be_dst_outside", _set("birds_eye.dst", [[160, 3600], [160, -3000], [480, 0], [480, 360]]), IMPLAUSIBLE + "birds_eye.dst = [[160.0, 3600.0], [160.0, -3000.0], [480.0, 0.0], [480.0, 360.0]] must lie inside the 640x360 frame"),
+    ("be_warped_too_big", _set("birds_eye.warped_size", [6000, 360]), IMPLAUSIBLE + "birds_eye.warped_size 6000x360 must be at least 16 pixels and at most 4 times the camera image (5120x2880) each way"),
+    ("be_warped_million", _set("birds_eye.warped_size", [10**6, 10**6]), MALFORMED + "birds_eye.warped_size[0] = 1000000 is outside 1 to 65536 pixels"),
+    ("be_other_size", _set("birds_eye.image_size", [640, 480]), MALFORMED + "birds_eye.image_size is 640x480, but the camera's image_size is 1280x720"),
+    ("be_xm_1e308", _set("birds_eye.xm_per_px", 1e308), IMPLAUSIBLE + "birds_eye.xm_per_px = 1e+308 m makes the warped view inf m across (1 to 1000 m expected)"),
+    ("be_ym_zero", _set("birds_eye.ym_per_px", 0), IMPLAUSIBLE + "birds_eye.ym_per_px = 0 m makes the warped view 0 m long"),
+    ("be_string", _set("birds_eye", "yes"), MALFORMED + 'birds_eye must be an object or null, got "yes"'),
+    ("be_3_points", _set("birds_eye.src", [[1, 2], [3, 4], [5, 6]]), MALFORMED + "birds_eye.src must be 4 lists of 2 numbers"),
+    ("be_no_src", _set("birds_eye.src!", None), MALFORMED + "no birds_eye.'src'"),
+    # wrong types, shapes and numbers
+    ("matrix_string", _set("matrix.0.0", "1157"), MALFORMED + 'matrix[0][0] must be a number, got "1157"'),
+    ("matrix_bool", _set("matrix.0.0", True), MALFORMED + "matrix[0][0] must be a number, got true"),
+    ("matrix_2x2", _set("matrix", [[1, 0], [0, 1]]), MALFORMED + "matrix must be 3 lists of 3 numbers, got [[1, 0], [0, 1]]"),
+    ("matrix_ragged", _set("matrix.1", [0, 1]), MALFORMED + "matrix[1] must be a list of 3 numbers, got [0, 1]"),
+    ("matrix_nested", _set("matrix.0.0", [[1]]), MALFORMED + "matrix[0][0] must be a number, got [[1]]"),
+    ("matrix_object", _set("matrix", {"fx": 1}), MALFORMED + 'matrix must be 3 lists of 3 numbers, got {"fx": 1}'),
+    ("matrix_missing", _set("matrix!", None), MALFORMED + "no 'matrix'"),
+    ("matrix_int_1e400", _set("matrix.0.0", 10**400), MALFORMED + "matrix[0][0] = 1000000000000000000000000000000000000... is too large"),
+    ("size_string", _set("image_size", "1280x720"), MALFORMED + 'image_size must be 2 whole numbers (width, height), got "1280x720"'),
+    ("size_fraction", _set("image_size.0", 1280.5), MALFORMED + "image_size[0] must be a whole number of pixels, got 1280.5"),
+    ("size_bool", _set("image_size", [True, True]), MALFORMED + "image_size[0] must be a whole number of pixels, got true"),
+    ("size_1e12", _set("image_size.0", 10**12), MALFORMED + "image_size[0] = 1000000000000 is outside 1 to 65536 pixels"),
+    ("rms_string", _set("rms", "abc"), MALFORMED + 'rms must be a number, got "abc"'),
+    ("rms_negative", _set("rms", -1), MALFORMED + "rms = -1 must be >= 0"),
+    ("images_used_object", _set("images_used", {"a": [1]}), MALFORMED + 'images_used must be a list of file names, got {"a": [1]}'),
+    ("per_image_rms_list", _set("per_image_rms", [1, 2]), MALFORMED + "per_image_rms must be an object (file name: value), got [1, 2]"),
+    ("per_image_rms_string", _set("per_image_rms", {"calibration2.jpg": "x"}), MALFORMED + 'per_image_rms["calibration2.jpg"] must be a number, got "x"'),
+]  # fmt: skip
+CAMERA_TEXTS = [  # cases JSON cannot spell through json.dumps of a dict
+    ("src_nan", lambda t: t.replace("210.98", "NaN"), MALFORMED + "birds_eye.src[0][0] must be a finite number, got nan"),
+    ("ym_infinity", lambda t: t.replace("0.0941176", "Infinity"), MALFORMED + "birds_eye.ym_per_px must be a finite number, got inf"),
+    ("deep_nesting", lambda t: t.replace('"matrix": [', '"matrix": ' + "[" * 100_000 + "]" * 100_000 + ", \"x\": [", 1), "not a camera file: JSON nested too deeply"),
+    ("empty", lambda t: "", "not a camera file: invalid JSON (Expecting value: line 1 column 1 (char 0))"),
+    ("not_an_object", lambda t: "[1, 2]", 'not a camera file (expected "format": "vehicle-detection camera 1")'),
+]  # fmt: skip
+
+
+def _camera_file(folder: Path, change=None, text=None) -> Path:
+    import copy
+    import json
+
+    d = copy.deepcopy(CAMERA)
+    if change is not None:
+        change(d)
+    path = folder / "camera.json"
+    body = json.dumps(d)
+    path.write_text(text(body) if text is not None else body)
+    return path
+
+
+def _road(folder: Path) -> Path:
+    return save(folder / "road.png", picture(720, 1280))
+
+
+@pytest.mark.parametrize(("case", "change", "problem"), CAMERA_CASES, ids=[c[0] for c in CAMERA_CASES])
+def test_camera_file_faults_are_refused_naming_the_field(tmp_path, capsys, case, change, problem):
+    image = _road(tmp_path)
+    camera = _camera_file(tmp_path, change)
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
+    assert code == 3
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{camera}: ") and problem in err[0], err
+    assert out == [] and snapshot(tmp_path) == before  # refused before any work
+
+
+@pytest.mark.parametrize(("case", "text", "problem"), CAMERA_TEXTS, ids=[c[0] for c in CAMERA_TEXTS])
+def test_camera_file_text_faults(tmp_path, capsys, case, text, problem):
+    image = _road(tmp_path)
+    camera = _camera_file(tmp_path, text=text)
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera)
+    assert (code, err) == (3, [f"{ERROR}{camera}: {problem}"])
+    assert out == [] and snapshot(tmp_path) == before
+
+
+def test_camera_of_the_issue_gives_one_line_and_exit_3(tmp_path, capsys):
+    """Issue 19: focal length 1e308 was accepted and undistorted every frame to nothing (0 vehicles, exit 0)."""
+    from vehicle_detection.camera import Camera
+
+    camera = _camera_file(tmp_path, _set("matrix.0.0", 1e308))
+    with pytest.raises(InputError) as info:
+        Camera.load(camera)
+    assert str(info.value) == (
+        f"{camera}: implausible camera file: matrix[0][0] (fx) = 1e+308 px is outside 0.1 to 10 times the image "
+        "width (128 to 12800 px for 1280x720 images)"
+    )
+
+
+def test_the_unchanged_camera_file_is_accepted(tmp_path, capsys):
+    """The baseline of the cases above passes every check (with a byte-order mark, too)."""
+    image = _road(tmp_path)
+    camera = _camera_file(tmp_path, text=lambda t: "\ufeff" + t)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
+    assert (code, err) == (0, [])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["camera.json", "road.png", "road_boxes.csv", "road_detected.png"]
+
+
+def test_cameras_made_in_code_are_checked_too():
+    from vehicle_detection.camera import Camera
+    from vehicle_detection.lanes import BirdsEye
+
+    good = Camera((1280, 720), CAMERA["matrix"], CAMERA["distortion"])
+    with pytest.raises(ValueError, match=r"^matrix\[0\]\[2\] \(cx\) = 5000: the principal point is outside"):
+        good.replace(matrix=[[1157.0, 0, 5000], [0, 1152.0, 388.0], [0, 0, 1]])
+    with pytest.raises(ValueError, match=r"folds the image"):
+        good.replace(distortion=[-5.0, 0, 0, 0, 0])
+    be = CAMERA["birds_eye"]
+    view = BirdsEye(be["src"], be["dst"], (1280, 720), (640, 360), be["xm_per_px"], be["ym_per_px"])
+    assert np.abs(view.to_warped(view.src) - view.dst).max() < 0.01
+    with pytest.raises(ValueError, match=r"^birds_eye\.image_size is 640x480, but the camera's image_size is 1280x720$"):
+        good.replace(birds_eye=BirdsEye([[60, 480], [290, 300], [350, 300], [580, 480]], be["dst"], (640, 480), (640, 360), 0.01, 0.1))
+    with pytest.raises(ValueError, match=r"^dst = .* must lie inside the 640x360 frame"):
+        BirdsEye(be["src"], [[160, 400], [160, 0], [480, 0], [480, 400]], (1280, 720), (640, 360), 0.01, 0.1)
+
+
+def test_calibrate_refuses_an_implausible_fit(monkeypatch):
+    import cv2
+
+    from test_camera import render_chessboards
+    from vehicle_detection.camera import calibrate
+
+    real = cv2.calibrateCamera
+
+    def absurd(*args, **kwargs):
+        rms, matrix, dist, rvecs, tvecs = real(*args, **kwargs)
+        matrix[0, 0] = 1e308
+        return rms, matrix, dist, rvecs, tvecs
+
+    monkeypatch.setattr(cv2, "calibrateCamera", absurd)
+    with pytest.raises(InputError, match=r"^the calibration from 4 photos gave an implausible camera \(matrix\[0\]\[0\] \(fx\) = 1e\+308 px"):
+        calibrate(render_chessboards(4))
+
+
+CAMERA_CAL = REPO.parent / "shared" / "data" / "camera_cal"
+STRAIGHT = [REPO.parent / "shared" / "data" / "lanes" / f"straight_lines{i}.jpg" for i in (1, 2)]
+
+
+@pytest.mark.skipif(not (CAMERA_CAL.is_dir() and all(p.is_file() for p in STRAIGHT)), reason="no chessboard photos or straight-road frames in ../shared/data")
+def test_the_real_calibrated_camera_passes_every_check(tmp_path, capsys):
+    from vehicle_detection.camera import Camera
+
+    camera = tmp_path / "camera.json"
+    code, _, err = run_main(capsys, "calibrate", CAMERA_CAL, "--straight", *STRAIGHT, "--out", camera)
+    assert (code, err) == (0, [])
+    loaded = Camera.load(camera)
+    assert loaded.birds_eye is not None and 0.5 < loaded.matrix[0, 0] / 1280 < 1.5
+    image = tmp_path / "test1.jpg"
+    shutil.copy(TEST_IMAGES / "test1.jpg", image)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
+    assert (code, err) == (0, [])
+    assert out[0].endswith("vehicles -> " + str(tmp_path / "test1_detected.jpg")) and not out[0].endswith(": 0 vehicles -> " + str(tmp_path / "test1_detected.jpg"))
+
+
+@pytest.mark.skipif(not all(p.is_file() for p in STRAIGHT), reason="no straight-road frames in ../shared/data")
+def test_straight_road_frames_giving_an_absurd_view_are_an_input_error():
+    from vehicle_detection.lanes import birds_eye_from_straight
+
+    frames = [read_image(p) for p in STRAIGHT]
+    with pytest.raises(InputError, match=r"^the straight-road frames give an implausible bird's-eye view: warped_size 8x8 must be at least 16 pixels"):
+        birds_eye_from_straight(frames, warped_size=(8, 8))

@@ -108,7 +108,8 @@ class BirdsEye:
 
         - ``src`` is a convex quadrilateral in that corner order covering at least
           :data:`MIN_QUAD_AREA` of the camera frame and lying inside it (the bottom corners may
-          lie up to half a frame width beyond its sides); ``dst`` likewise inside the warped view;
+          lie up to half a frame width beyond its sides), no wider at its top than at its bottom;
+          ``dst`` likewise inside the warped view;
         - the transform is invertible, and ``src`` and the bottom centre of the frame lie on the
           ground side of its horizon (so the lane region maps onto ``dst``, inside the view);
         - ``warped_size`` is at least :data:`MIN_WARPED_SIDE` pixels and at most 4 times the
@@ -162,6 +163,9 @@ class BirdsEye:
         problem = _quad_problem("src", self.src, w, h, w / 2) or _quad_problem("dst", self.dst, ww, wh, 0.0)
         if problem:
             return problem
+        (blx, _), (tlx, _), (trx, _), (brx, _) = self.src.astype(np.float64)
+        if trx - tlx > brx - blx:
+            return f"src = {self.src.tolist()}: the lane must narrow towards its top (its lines meet at the horizon above it)"
         # ... mapped by an invertible transform onto its place in the warped view, on the ground
         # side of the horizon, as is the bottom centre of the frame (the camera's own position).
         try:
