@@ -950,3 +950,129 @@ def test_straight_road_frames_giving_an_absurd_view_are_an_input_error():
     frames = [read_image(p) for p in STRAIGHT]
     with pytest.raises(InputError, match=r"^the straight-road frames give an implausible bird's-eye view: warped_size 8x8 must be at least 16 pixels"):
         birds_eye_from_straight(frames, warped_size=(8, 8))
+
+
+# ----------------------------------------------------------------------------------------------
+# p. Labels files, through evaluate, train --labels and mine-negatives: exit 3, one line naming
+#    the file (and the frame and box), no model and no negatives written
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def labelled_inputs(tmp_path_factory):
+    """A 3-frame 1280x720 clip, a folder of two 1280x720 images, a tiny training set, and hostile
+    things for a labels file to name: an empty folder, a FIFO, a link to /dev/zero."""
+    if not TEST_VIDEO.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    root = tmp_path_factory.mktemp("labelled")
+    media.copy_packets(TEST_VIDEO, root / "clip.mp4", max_frames=3)
+    (root / "shots").mkdir()
+    for i in range(2):
+        save(root / "shots" / f"a{i}.png", picture(720, 1280, seed=i))
+    make_data(root / "data", 12, groups=6)
+    (root / "empty").mkdir()
+    if sys.platform != "win32":
+        os.mkfifo(root / "fifo.mp4")
+        (root / "zero.mp4").symlink_to("/dev/zero")
+    return root
+
+
+CAR = [100, 400, 300, 550]
+LABEL_COMMANDS = ("evaluate", "train", "mine")
+LABELS_CASES = [
+    # (case, video, frames or raw text, commands, fragment of the one-line error)
+    ("box_beyond_the_frame", "clip.mp4", {"0": {"cars": [[1200, 600, 1500, 900]]}}, LABEL_COMMANDS,
+     'frames["0"].cars[0] = [1200, 600, 1500, 900] reaches beyond the 1280x720 frame of {root}/clip.mp4'),
+    ("box_far_outside", "clip.mp4", {"0": {"cars": [CAR]}, "1": {"cars": [CAR, [5000, 5000, 5200, 5200]]}}, LABEL_COMMANDS,
+     'frames["1"].cars[1] = [5000, 5000, 5200, 5200] reaches beyond the 1280x720 frame'),
+    ("ignore_beyond_the_frame", "clip.mp4", {"0": {"cars": [CAR], "ignore": [[0, 0, 1281, 10]]}}, LABEL_COMMANDS,
+     'frames["0"].ignore[0] = [0, 0, 1281, 10] reaches beyond the 1280x720 frame'),
+    ("huge_box_in_range", "clip.mp4", {"0": {"cars": [[0, 0, 99999, 99999]]}}, LABEL_COMMANDS,
+     'frames["0"].cars[0] = [0, 0, 99999, 99999] reaches beyond'),
+    ("image_box_beyond", "shots", {"0": {"cars": [CAR]}, "1": {"cars": [[0, 0, 1280, 721]]}}, LABEL_COMMANDS,
+     'frames["1"].cars[0] = [0, 0, 1280, 721] reaches beyond the 1280x720 frame of {root}/shots/a1.png'),
+    ("frame_beyond_the_end", "clip.mp4", {"0": {"cars": [CAR]}, "99": {"cars": [CAR]}}, LABEL_COMMANDS,
+     "labels frame(s) 99, but {root}/clip.mp4 has only 3 decoded frames"),
+    ("image_beyond_the_folder", "shots", {"0": {"cars": [CAR]}, "5": {"cars": [CAR]}}, LABEL_COMMANDS,
+     "labels image 5, but {root}/shots has only 2 images"),
+    ("no_cars_to_train_on", "clip.mp4", {"0": {"cars": []}, "2": {"cars": []}}, ("train",),
+     "no labelled cars; the labels add vehicles"),
+    ("no_video", None, {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "the labels name no video"),
+    ("video_empty_string", "", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "'video' must be the path of a video or image folder"),
+    ("video_empty_folder", "empty", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/empty: no image files"),
+    ("video_missing", "nope.mp4", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/nope.mp4"),
+    ("video_dev_zero", "zero.mp4", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/zero.mp4: is a device, not a regular file (video file expected)"),
+    ("video_fifo", "fifo.mp4", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/fifo.mp4: is a FIFO (named pipe), not a regular file (video file expected)"),
+    ("video_is_a_labels_file", "data/../clip.json", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "not a readable video file"),
+    # the file itself
+    ("empty_file", "clip.mp4", "", LABEL_COMMANDS, "invalid JSON at line 1 column 1"),
+    ("not_utf8", "clip.mp4", b'{"frames": {"0": {"cars": []}}, "video": "\xff"}', LABEL_COMMANDS, "not UTF-8 text (byte 42); is this a JSON file?"),
+    ("duplicate_frames", "clip.mp4", '{"frames": {"0": {"cars": []}, "0": {"cars": []}}}', LABEL_COMMANDS, "duplicate key '0'"),
+    ("nan_coordinate", "clip.mp4", '{"frames": {"0": {"cars": [[NaN, 1, 2, 3]]}}}', LABEL_COMMANDS, "NaN is not a number allowed in annotations"),
+    ("inverted_box", "clip.mp4", {"0": {"cars": [[50, 10, 10, 60]]}}, LABEL_COMMANDS, "x2 (10) <= x1 (50)"),
+    ("cars_not_a_list", "clip.mp4", {"0": {"cars": "many"}}, LABEL_COMMANDS, 'frames["0"].cars must be a list of boxes'),
+    ("coordinate_1e300", "clip.mp4", {"0": {"cars": [[0, 0, 1e300, 10]]}}, LABEL_COMMANDS, "x2 = 1e+300 is outside 0.."),
+    ("negative_frame", "clip.mp4", {"-1": {"cars": []}}, LABEL_COMMANDS, 'frame key "-1" is not a non-negative integer'),
+    ("deeply_nested", "clip.mp4", '{"frames": ' + "[" * 100_000 + "]" * 100_000 + "}", LABEL_COMMANDS, "JSON nested too deeply"),
+]  # fmt: skip
+
+
+def _labels_file(folder: Path, root: Path, video, frames) -> Path:
+    import json
+
+    path = folder / "clip.json"
+    if isinstance(frames, bytes):
+        path.write_bytes(frames)
+    elif isinstance(frames, str):
+        path.write_text(frames.replace('{"frames"', f'{{"video": {json.dumps(str(root / "clip.mp4"))}, "frames"', 1) if frames else "")
+    else:
+        path.write_text(json.dumps({"video": None if video is None else (str(root / video) if video else ""), "frames": frames}))
+    return path
+
+
+def _labels_argv(command: str, labels: Path, root: Path, out: Path) -> list:
+    if command == "evaluate":
+        return ["evaluate", "--labels", labels, "--no-progress"]
+    if command == "train":
+        return ["train", "--data-dir", root / "data", "--labels", labels, "--model", out / "model.npz"]
+    return ["mine-negatives", "--labels", labels, "--out", out / "negatives", "--no-progress"]
+
+
+@posix_only
+@pytest.mark.timeout(120)  # a FIFO opened for reading would block
+@pytest.mark.parametrize(
+    ("case", "command", "video", "frames", "problem"),
+    [(case, command, video, frames, problem) for case, video, frames, commands, problem in LABELS_CASES for command in commands],
+    ids=[f"{c[0]}-{command}" for c in LABELS_CASES for command in c[3]],
+)
+def test_labels_file_faults(tmp_path, capsys, labelled_inputs, case, command, video, frames, problem):
+    root = labelled_inputs
+    labels = _labels_file(tmp_path, root, video, frames)
+    if case == "video_is_a_labels_file":  # the labels name themselves as the video
+        labels.write_text(labels.read_text().replace(str(root / "data/../clip.json"), str(labels)))
+    before, inputs_before = snapshot(tmp_path), snapshot(root)
+    code, _, err = run_main(capsys, *_labels_argv(command, labels, root, tmp_path))
+    err = [line for line in err if not line.endswith(": frame 0")]  # mine-negatives' progress
+    assert code == 3
+    assert len(err) == 1 and err[0].startswith(ERROR) and problem.format(root=root) in err[0], err
+    assert snapshot(tmp_path) == before and snapshot(root) == inputs_before  # no model, no negatives
+
+
+@posix_only
+def test_labels_file_that_is_not_a_regular_file(tmp_path, capsys):
+    fifo = tmp_path / "labels.json"
+    os.mkfifo(fifo)
+    folder = tmp_path / "folder.json"
+    folder.mkdir()
+    code, _, err = run_main(capsys, "evaluate", "--labels", fifo)
+    assert (code, err) == (3, [f"{ERROR}{fifo}: is a FIFO (named pipe), not a regular file (annotation file expected)"])
+    code, _, err = run_main(capsys, "mine-negatives", "--labels", folder, "--out", tmp_path / "neg")
+    assert (code, err) == (3, [f"{ERROR}{folder}: is a folder, not a regular file (annotation file expected)"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.json", "labels.json"]
+
+
+def test_labels_inside_the_frame_are_accepted(tmp_path, capsys, labelled_inputs):
+    """The boundary of the box check: x2 and y2 are exclusive, so x2 = 1280, y2 = 720 fit."""
+    labels = _labels_file(tmp_path, labelled_inputs, "shots", {"0": {"cars": [[1180, 620, 1280, 720]]}, "1": {"cars": [CAR]}})
+    code, out, err = run_main(capsys, "evaluate", "--labels", labels, "--no-progress")
+    assert (code, err) == (0, []) and out[0] == f"{labels}: 2 frames, 2 cars"
