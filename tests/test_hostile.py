@@ -1076,3 +1076,228 @@ def test_labels_inside_the_frame_are_accepted(tmp_path, capsys, labelled_inputs)
     labels = _labels_file(tmp_path, labelled_inputs, "shots", {"0": {"cars": [[1180, 620, 1280, 720]]}, "1": {"cars": [CAR]}})
     code, out, err = run_main(capsys, "evaluate", "--labels", labels, "--no-progress")
     assert (code, err) == (0, []) and out[0] == f"{labels}: 2 frames, 2 cars"
+
+
+# ----------------------------------------------------------------------------------------------
+# q. Model files, correctly signed but absurd, or not files at all: exit 4, one line
+# ----------------------------------------------------------------------------------------------
+
+
+def _signed_model(path: Path, change_arrays=None, change_meta=None) -> Path:
+    """The embedded model with some arrays or header fields changed, and signed again: only the
+    plausibility checks can refuse it."""
+    import json
+
+    from vehicle_detection.classifier import _digest, default_model_path
+
+    with np.load(default_model_path(), allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files if k != "meta"}
+        meta = json.loads(npz["meta"].tobytes())
+    if change_arrays:
+        change_arrays(arrays)
+    if change_meta:
+        change_meta(meta)
+    meta["sha256"] = _digest(arrays, meta)
+    np.savez(path, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    return path
+
+
+def _array(name, value):
+    def change(a):
+        a[name] = np.full_like(a[name], value) if np.ndim(value) == 0 else np.asarray(value)
+
+    return change
+
+
+def _plan(key, value, scale=None):
+    def change(meta):
+        plan = meta["detector_config"]["plan"]
+        (plan["scales"][0] if scale else plan)[key] = value
+
+    return change
+
+
+MODEL_CASES = [
+    ("coef_1e300", _array("coef", 1e300), None, "array coef holds 1e+300; a model's numbers are at most 1e+09 in magnitude"),
+    ("intercept_1e308", _array("intercept", 1e308), None, "array intercept holds 1e+308; a model's numbers are at most 1e+09"),
+    ("scaler_mean_1e308", _array("scaler_mean", 1e308), None, "array scaler_mean holds 1e+308"),
+    ("scale_1e-300", _array("scaler_scale", 1e-300), None, "coef / scaler_scale reaches"),
+    ("box_coef_1e300", _array("box_coef", 1e300), None, "array box_coef holds 1e+300"),
+    ("box_coef_nan", _array("box_coef", np.nan), None, "box regressor weights must be finite"),
+    ("box_coef_transposed", lambda a: a.update(box_coef=np.ascontiguousarray(a["box_coef"].T)), None, "box refinement arrays are float64 (10272, 4) and float64 (4,), expected float64 (4, 10272) and (4,)"),
+    ("box_intercept_5", _array("box_intercept", np.zeros(5)), None, "box refinement arrays are float64 (4, 10272) and float64 (5,)"),
+    ("box_coef_float32", lambda a: a.update(box_coef=a["box_coef"].astype(np.float32)), None, "box refinement arrays are float32 (4, 10272)"),
+    ("coef_int64", lambda a: a.update(coef=a["coef"].astype(np.int64)), None, "array coef is int64 (10272,), expected float64 (10272,)"),
+    ("library_version_5000_digits", None, lambda m: m.update(library_version="9" * 5000), "library_version in the header must be a version string"),
+    ("library_version_object", None, lambda m: m.update(library_version={"a": 1}), "library_version in the header must be a version string"),
+    ("plan_scale_1e-9", None, _plan("scale", 1e-9, scale=True), "scale must be within 0.25..32 (windows of 16 to 2048 pixels), got 1e-09"),
+    ("plan_scale_1e9", None, _plan("scale", 1e9, scale=True), "scale must be within 0.25..32"),
+    ("plan_threshold_nan", None, _plan("threshold", float("nan")), "threshold must be a finite number, got nan"),
+    ("plan_reference_height_1e6", None, _plan("reference_height", 10**6), "reference_height must be 64 to 1440 pixels, got 1000000"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("case", "arrays", "meta", "problem"), MODEL_CASES, ids=[c[0] for c in MODEL_CASES])
+def test_signed_but_absurd_model_files_are_refused(tmp_path, capsys, case, arrays, meta, problem):
+    img = save(tmp_path / "street.png", picture())
+    model = _signed_model(tmp_path / "model.npz", arrays, meta)
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "detect", img, "--model", model)
+    assert code == 4
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{model}: ") and problem in err[0], err
+    assert out == [] and snapshot(tmp_path) == before
+
+
+def test_re_signed_unchanged_model_is_accepted(tmp_path, capsys):
+    """The baseline of the cases above: signing again changes nothing."""
+    img = save(tmp_path / "street.png", picture())
+    model = _signed_model(tmp_path / "model.npz")
+    assert run_main(capsys, "detect", img, "--model", model)[:2] == (0, [f"{img}: 0 vehicles -> {tmp_path / 'street_detected.png'}", f"boxes: {tmp_path / 'street_boxes.csv'}"])
+
+
+@posix_only
+@pytest.mark.timeout(120)  # a FIFO opened for reading would block
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "folder"])
+def test_model_path_that_is_not_a_regular_file(tmp_path, capsys, kind):
+    img = save(tmp_path / "street.png", picture())
+    model = tmp_path / "model.npz"
+    if kind == "fifo":
+        os.mkfifo(model)
+    elif kind == "dev_zero":
+        model.symlink_to("/dev/zero")
+    else:
+        model.mkdir()
+    before = snapshot(tmp_path)
+    code, _, err = run_main(capsys, "detect", img, "--model", model)
+    what = {"fifo": "is a FIFO (named pipe), not", "dev_zero": "is a device, not", "folder": "is a folder, not"}[kind]
+    assert (code, err) == (4, [f"{ERROR}{model}: {what} a regular file (model file expected)"])
+    assert snapshot(tmp_path) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# r. Mined-negative folders (train --extra-negatives): exit 3, one line naming the entry, no model
+# ----------------------------------------------------------------------------------------------
+
+
+def _negatives(folder: Path, n: int = 6) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        (folder / f"n{i}.png").write_bytes(_png(500 + i))
+    return folder
+
+
+def _neg_case(kind: str, tmp: Path) -> tuple[Path, str]:
+    """The folder for ``--extra-negatives`` and the expected message after ``ERROR``."""
+    neg = tmp / "neg"
+    if kind == "a_file":
+        neg.parent.mkdir(parents=True, exist_ok=True)
+        neg.write_bytes(_png(1))
+        return neg, f"{neg}: not a folder; --extra-negatives takes folders of 64x64 PNG negatives"
+    if kind == "missing":
+        return neg, f"{neg}: extra negatives folder not found"
+    if kind == "empty":
+        neg.mkdir(parents=True)
+        return neg, f"{neg}: no PNG images in this extra negatives folder"
+    if kind == "only_jpegs":
+        neg.mkdir(parents=True)
+        save(neg / "a.jpg", picture(64, 64))
+        return neg, f"{neg}: no PNG images in this extra negatives folder"
+    _negatives(neg)
+    bad = neg / "bad.png"
+    if kind == "not_an_image":
+        bad.write_text("hello")
+        return neg, f"{bad}: not an image (or a format Pillow cannot read)"
+    if kind == "wrong_size":
+        save(bad, picture(100, 100))
+        return neg, f"{bad}: training patches must be 64x64, got 100x100"
+    if kind == "link_to_dev_zero":
+        bad.symlink_to("/dev/zero")
+        return neg, f"{bad}: is a device, not a regular file (PNG image expected)"
+    if kind == "fifo":
+        os.mkfifo(bad)
+        return neg, f"{bad}: is a FIFO (named pipe), not a regular file (PNG image expected)"
+    if kind == "dangling_link":
+        bad.symlink_to(tmp / "gone.png")
+        return neg, f"{bad}: a symlink to nothing in an extra negatives folder; remove it"
+    if kind == "folder_named_png":
+        bad.mkdir()
+        (bad / "inner.png").write_bytes(_png(7))
+        (bad / "odd.png").write_text("not a png")
+        return neg, f"{bad / 'odd.png'}: not an image (or a format Pillow cannot read)"
+    if kind == "vehicles_inside":
+        (neg / "vehicles").mkdir()
+        (neg / "vehicles" / "v.png").write_bytes(_png(9))
+        return neg, f"{neg / 'vehicles' / 'v.png'}: an extra negatives folder may not hold a vehicles/ folder; only negatives are added"
+    raise AssertionError(kind)
+
+
+NEGATIVE_KINDS = ["a_file", "missing", "empty", "only_jpegs", "not_an_image", "wrong_size", "link_to_dev_zero", "fifo",
+                  "dangling_link", "folder_named_png", "vehicles_inside"]  # fmt: skip
+
+
+@posix_only
+@pytest.mark.timeout(120)  # a FIFO opened for reading would block
+@pytest.mark.parametrize("kind", NEGATIVE_KINDS)
+def test_extra_negatives_folder_faults(tmp_path, capsys, kind):
+    data = make_data(tmp_path / "data", 12, groups=6)
+    neg, message = _neg_case(kind, tmp_path / "in")
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "train", "--data-dir", data, "--extra-negatives", neg, "--model", tmp_path / "model.npz")
+    assert (code, err) == (3, [f"{ERROR}{message}"])
+    assert out == [] and snapshot(tmp_path) == before
+
+
+def test_extra_negatives_through_a_symlinked_file_are_accepted(tmp_path, capsys):
+    data = make_data(tmp_path / "data", 12, groups=6)
+    neg = _negatives(tmp_path / "neg")
+    (neg / "linked.png").symlink_to(_negatives(tmp_path / "elsewhere", 1) / "n0.png")
+    code, _, err = run_main(capsys, "train", "--data-dir", data, "--extra-negatives", neg, "--model", tmp_path / "model.npz", "--json")
+    assert (code, err) == (0, [])
+    from vehicle_detection.classifier import VehicleClassifier
+
+    assert VehicleClassifier.load(tmp_path / "model.npz").metrics["extra_negatives"] == {"non-vehicles/neg": 7}
+
+
+# ----------------------------------------------------------------------------------------------
+# s. Text inputs that are devices are refused before they are read (were read until memory ran
+#    out): run in a child process with a memory limit, so that a regression fails, not the machine
+# ----------------------------------------------------------------------------------------------
+
+DEVICE_CHILD = r"""
+import contextlib, io, json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+from vehicle_detection.cli import main
+out = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(argv)
+    out.append([code, err.getvalue().splitlines()])
+print(json.dumps(out))
+"""
+
+
+@posix_only
+def test_inputs_linked_to_dev_zero_are_refused_without_reading(tmp_path):
+    import json
+
+    img = save(tmp_path / "street.png", picture())
+    zero = {name: tmp_path / name for name in ("camera.json", "labels.json", "boxes.csv", "image.png")}
+    for link in zero.values():
+        link.symlink_to("/dev/zero")
+    (tmp_path / "ok.json").write_text(json.dumps({"video": str(img.parent), "frames": {"0": {"cars": []}}}))
+    cases = [
+        (["detect", img, "--camera", zero["camera.json"]], 3, f"{zero['camera.json']}: is a device, not a regular file (camera file expected)"),
+        (["evaluate", "--labels", zero["labels.json"]], 3, f"{zero['labels.json']}: is a device, not a regular file (annotation file expected)"),
+        (["evaluate", "--labels", tmp_path / "ok.json", "--boxes", zero["boxes.csv"]], 3, f"{zero['boxes.csv']}: is a device, not a regular file (boxes file expected)"),
+        (["detect", zero["image.png"]], 3, f"{zero['image.png']}: is a device, not a regular file (image file expected)"),
+    ]  # fmt: skip
+    before = snapshot(tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-c", DEVICE_CHILD, json.dumps([[str(a) for a in argv] for argv, _, _ in cases])],
+        capture_output=True, text=True, timeout=300, cwd=REPO,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    results = json.loads(proc.stdout.splitlines()[-1])
+    assert results == [[code, [ERROR + message]] for _, code, message in cases]
+    assert snapshot(tmp_path) == before

@@ -84,6 +84,8 @@ def _implausible_weights(arrays: dict[str, np.ndarray]) -> str:
         top = float(np.max(np.abs(a))) if a.size else 0.0
         if top > MAX_MODEL_VALUE:
             return f"array {name} holds {top:.3g}; a model's numbers are at most {MAX_MODEL_VALUE:g} in magnitude"
+    if "coef" not in arrays:
+        return ""
     weights = arrays["coef"] / arrays["scaler_scale"]
     bias = float(arrays["intercept"][0] - np.dot(weights, arrays["scaler_mean"]))
     if np.max(np.abs(weights)) > MAX_MODEL_VALUE or not abs(bias) <= MAX_MODEL_VALUE:
@@ -367,6 +369,9 @@ def _box_regressor(path: Path, data: dict[str, np.ndarray], n: int) -> BoxRegres
     coef, intercept = data["box_coef"], data["box_intercept"]
     if coef.dtype != np.float64 or coef.shape != (4, n) or intercept.dtype != np.float64 or intercept.shape != (4,):
         raise ModelError(f"{path}: box refinement arrays are {coef.dtype} {coef.shape} and {intercept.dtype} {intercept.shape}, expected float64 (4, {n}) and (4,)")
+    problem = _implausible_weights({"box_coef": coef, "box_intercept": intercept})
+    if problem:
+        raise ModelError(f"{path}: {problem}")
     try:
         return BoxRegressor(coef, intercept)
     except ValueError as exc:
