@@ -717,3 +717,587 @@ def test_search_refuses_absurd_arrays():
 
     with pytest.raises(InputError, match="too wide"):
         Detector().detect_image(np.zeros((10, 20000, 3), np.uint8))
+
+
+# ----------------------------------------------------------------------------------------------
+# o. Camera files: malformed fields and absurd (finite) values are refused with exit 3, one line
+#    naming the file and the field, before any output
+# ----------------------------------------------------------------------------------------------
+
+# The project camera as `calibrate camera_cal --straight straight_lines1.jpg straight_lines2.jpg`
+# gives it (rounded): every case below changes one field of it.
+CAMERA = {
+    "format": "vehicle-detection camera 1",
+    "image_size": [1280, 720],
+    "matrix": [[1157.0213, 0.0, 665.9501], [0.0, 1152.3001, 388.1435], [0.0, 0.0, 1.0]],
+    "distortion": [-0.239189, -0.076758, -0.000809, -0.000231, 0.092732],
+    "rms": 0.8311,
+    "images_used": ["calibration2.jpg", "calibration3.jpg"],
+    "images_cropped": [],
+    "images_skipped": {"calibration1.jpg": "no full 9x6 chessboard found"},
+    "per_image_rms": {"calibration2.jpg": 1.26, "calibration3.jpg": 0.61},
+    "birds_eye": {
+        "src": [[210.98, 720.0], [596.85, 450.0], [686.53, 450.0], [1105.46, 720.0]],
+        "dst": [[160.0, 360.0], [160.0, 0.0], [480.0, 0.0], [480.0, 360.0]],
+        "image_size": [1280, 720],
+        "warped_size": [640, 360],
+        "xm_per_px": 0.0115625,
+        "ym_per_px": 0.0941176,
+    },
+}
+
+
+def _set(path: str, value):
+    """A change of CAMERA: ``"matrix.0.0"`` -> ``d["matrix"][0][0] = value`` (None value with a
+    trailing ``!`` deletes the key)."""
+
+    def change(d):
+        *parents, last = path.rstrip("!").split(".")
+        for key in parents:
+            d = d[int(key) if key.isdigit() else key]
+        if path.endswith("!"):
+            del d[last]
+        else:
+            d[int(last) if last.isdigit() else last] = value
+
+    return change
+
+
+IMPLAUSIBLE = "implausible camera file: "
+MALFORMED = "malformed camera file: "
+CAMERA_CASES = [
+    # focal lengths within 0.1 to 10 times the image width, pixels about square
+    ("fx_1e308", _set("matrix.0.0", 1e308), IMPLAUSIBLE + "matrix[0][0] (fx) = 1e+308 px is outside 0.1 to 10 times the image width (128 to 12800 px for 1280x720 images)"),
+    ("fy_1px", _set("matrix.1.1", 1.0), IMPLAUSIBLE + "matrix[1][1] (fy) = 1 px is outside 0.1 to 10 times"),
+    ("fx_negative", _set("matrix.0.0", -1157.0), IMPLAUSIBLE + "matrix[0][0] (fx) = -1157 px is outside"),
+    ("fx_zero", _set("matrix.0.0", 0), IMPLAUSIBLE + "matrix[0][0] (fx) = 0 px is outside"),
+    ("fy_3_fx", _set("matrix.1.1", 3500.0), IMPLAUSIBLE + "matrix[1][1] / matrix[0][0] (fy / fx) = 3.03 is outside 0.5 to 2"),
+    # the principal point inside the image, a pinhole matrix
+    ("cx_outside", _set("matrix.0.2", 5000), IMPLAUSIBLE + "matrix[0][2] (cx) = 5000: the principal point is outside the image (0 to 1280 px)"),
+    ("cy_negative", _set("matrix.1.2", -300), IMPLAUSIBLE + "matrix[1][2] (cy) = -300: the principal point is outside the image (0 to 720 px)"),
+    ("skew", _set("matrix.0.1", 5000), IMPLAUSIBLE + "matrix[0][1] (skew) = 5000 must be 0"),
+    ("matrix_1_0", _set("matrix.1.0", 3), IMPLAUSIBLE + "matrix[1][0] = 3 must be 0"),
+    ("last_row_2", _set("matrix.2", [0, 0, 2]), IMPLAUSIBLE + "matrix[2] = [0.0, 0.0, 2.0] must be [0, 0, 1]"),
+    # distortion that keeps half the undistorted frame inside the image and never folds
+    ("pincushion_k1_50", _set("distortion.0", 50.0), "of the undistorted frame from outside the image (at most 50% may be)"),
+    ("radial_fold_k1", _set("distortion.0", -5.0), "folds the image"),
+    ("radial_fold_k3", _set("distortion.4", -3.0), "folds the image"),
+    ("tangential_fold_p1", _set("distortion.2", 1.0), "folds the image over near"),
+    ("distortion_3_numbers", _set("distortion", [0, 0, 0]), MALFORMED + "distortion has 3 coefficients; OpenCV's models have 4, 5, 8, 12 or 14"),
+    # the bird's-eye transform: invertible, in order, inside its frames, plausible metres
+    ("be_collinear", _set("birds_eye.src", [[0, 720], [100, 600], [200, 480], [300, 360]]), IMPLAUSIBLE + "birds_eye.src = [[0.0, 720.0], [100.0, 600.0], [200.0, 480.0], [300.0, 360.0]] must be bottom-left"),
+    ("be_degenerate", _set("birds_eye.src", [[600, 720], [600, 719], [601, 719], [601, 720]]), IMPLAUSIBLE + "birds_eye.src = [[600.0, 720.0], [600.0, 719.0], [601.0, 719.0], [601.0, 720.0]] must be a convex quadrilateral covering at least 1% of the frame"),
+    ("be_upside_down", _set("birds_eye.src", [[596.85, 450.0], [210.98, 720.0], [1105.46, 720.0], [686.53, 450.0]]), "must be bottom-left, top-left, top-right, bottom-right"),
+    ("be_widening", _set("birds_eye.src", [[500, 720], [100, 450], [1180, 450], [780, 720]]), IMPLAUSIBLE + "birds_eye.src = [[500.0, 720.0], [100.0, 450.0], [1180.0, 450.0], [780.0, 720.0]]: the lane must narrow towards its top"),
+    ("be_src_outside", _set("birds_eye.src", [[-5000, 720], [596.85, 450.0], [686.53, 450.0], [9000, 720]]), "must lie inside the 1280x720 frame (or at most 640 px beyond its sides)"),
+    ("be_dst_outside", _set("birds_eye.dst", [[160, 3600], [160, -3000], [480, 0], [480, 360]]), IMPLAUSIBLE + "birds_eye.dst = [[160.0, 3600.0], [160.0, -3000.0], [480.0, 0.0], [480.0, 360.0]] must lie inside the 640x360 frame"),
+    ("be_warped_too_big", _set("birds_eye.warped_size", [6000, 360]), IMPLAUSIBLE + "birds_eye.warped_size 6000x360 must be at least 16 pixels and at most 4 times the camera image (5120x2880) each way"),
+    ("be_warped_million", _set("birds_eye.warped_size", [10**6, 10**6]), MALFORMED + "birds_eye.warped_size[0] = 1000000 is outside 1 to 65536 pixels"),
+    ("be_other_size", _set("birds_eye.image_size", [640, 480]), MALFORMED + "birds_eye.image_size is 640x480, but the camera's image_size is 1280x720"),
+    ("be_xm_1e308", _set("birds_eye.xm_per_px", 1e308), IMPLAUSIBLE + "birds_eye.xm_per_px = 1e+308 m makes the warped view inf m across (1 to 1000 m expected)"),
+    ("be_ym_zero", _set("birds_eye.ym_per_px", 0), IMPLAUSIBLE + "birds_eye.ym_per_px = 0 m makes the warped view 0 m long"),
+    ("be_string", _set("birds_eye", "yes"), MALFORMED + 'birds_eye must be an object or null, got "yes"'),
+    ("be_3_points", _set("birds_eye.src", [[1, 2], [3, 4], [5, 6]]), MALFORMED + "birds_eye.src must be 4 lists of 2 numbers"),
+    ("be_no_src", _set("birds_eye.src!", None), MALFORMED + "no birds_eye.'src'"),
+    # wrong types, shapes and numbers
+    ("matrix_string", _set("matrix.0.0", "1157"), MALFORMED + 'matrix[0][0] must be a number, got "1157"'),
+    ("matrix_bool", _set("matrix.0.0", True), MALFORMED + "matrix[0][0] must be a number, got true"),
+    ("matrix_2x2", _set("matrix", [[1, 0], [0, 1]]), MALFORMED + "matrix must be 3 lists of 3 numbers, got [[1, 0], [0, 1]]"),
+    ("matrix_ragged", _set("matrix.1", [0, 1]), MALFORMED + "matrix[1] must be a list of 3 numbers, got [0, 1]"),
+    ("matrix_nested", _set("matrix.0.0", [[1]]), MALFORMED + "matrix[0][0] must be a number, got [[1]]"),
+    ("matrix_object", _set("matrix", {"fx": 1}), MALFORMED + 'matrix must be 3 lists of 3 numbers, got {"fx": 1}'),
+    ("matrix_missing", _set("matrix!", None), MALFORMED + "no 'matrix'"),
+    ("matrix_int_1e400", _set("matrix.0.0", 10**400), MALFORMED + "matrix[0][0] = 1000000000000000000000000000000000000... is too large"),
+    ("size_string", _set("image_size", "1280x720"), MALFORMED + 'image_size must be 2 whole numbers (width, height), got "1280x720"'),
+    ("size_fraction", _set("image_size.0", 1280.5), MALFORMED + "image_size[0] must be a whole number of pixels, got 1280.5"),
+    ("size_bool", _set("image_size", [True, True]), MALFORMED + "image_size[0] must be a whole number of pixels, got true"),
+    ("size_1e12", _set("image_size.0", 10**12), MALFORMED + "image_size[0] = 1000000000000 is outside 1 to 65536 pixels"),
+    ("rms_string", _set("rms", "abc"), MALFORMED + 'rms must be a number, got "abc"'),
+    ("rms_negative", _set("rms", -1), MALFORMED + "rms = -1 must be >= 0"),
+    ("images_used_object", _set("images_used", {"a": [1]}), MALFORMED + 'images_used must be a list of file names, got {"a": [1]}'),
+    ("per_image_rms_list", _set("per_image_rms", [1, 2]), MALFORMED + "per_image_rms must be an object (file name: value), got [1, 2]"),
+    ("per_image_rms_string", _set("per_image_rms", {"calibration2.jpg": "x"}), MALFORMED + 'per_image_rms["calibration2.jpg"] must be a number, got "x"'),
+]  # fmt: skip
+CAMERA_TEXTS = [  # cases JSON cannot spell through json.dumps of a dict
+    ("src_nan", lambda t: t.replace("210.98", "NaN"), MALFORMED + "birds_eye.src[0][0] must be a finite number, got nan"),
+    ("ym_infinity", lambda t: t.replace("0.0941176", "Infinity"), MALFORMED + "birds_eye.ym_per_px must be a finite number, got inf"),
+    ("deep_nesting", lambda t: t.replace('"matrix": [', '"matrix": ' + "[" * 100_000 + "]" * 100_000 + ", \"x\": [", 1), "not a camera file: JSON nested too deeply"),
+    ("empty", lambda t: "", "not a camera file: invalid JSON (Expecting value: line 1 column 1 (char 0))"),
+    ("not_an_object", lambda t: "[1, 2]", 'not a camera file (expected "format": "vehicle-detection camera 1")'),
+]  # fmt: skip
+
+
+def _camera_file(folder: Path, change=None, text=None) -> Path:
+    import copy
+    import json
+
+    d = copy.deepcopy(CAMERA)
+    if change is not None:
+        change(d)
+    path = folder / "camera.json"
+    body = json.dumps(d)
+    path.write_text(text(body) if text is not None else body)
+    return path
+
+
+def _road(folder: Path) -> Path:
+    return save(folder / "road.png", picture(720, 1280))
+
+
+@pytest.mark.parametrize(("case", "change", "problem"), CAMERA_CASES, ids=[c[0] for c in CAMERA_CASES])
+def test_camera_file_faults_are_refused_naming_the_field(tmp_path, capsys, case, change, problem):
+    image = _road(tmp_path)
+    camera = _camera_file(tmp_path, change)
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
+    assert code == 3
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{camera}: ") and problem in err[0], err
+    assert out == [] and snapshot(tmp_path) == before  # refused before any work
+
+
+@pytest.mark.parametrize(("case", "text", "problem"), CAMERA_TEXTS, ids=[c[0] for c in CAMERA_TEXTS])
+def test_camera_file_text_faults(tmp_path, capsys, case, text, problem):
+    image = _road(tmp_path)
+    camera = _camera_file(tmp_path, text=text)
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera)
+    assert (code, err) == (3, [f"{ERROR}{camera}: {problem}"])
+    assert out == [] and snapshot(tmp_path) == before
+
+
+def test_camera_of_the_issue_gives_one_line_and_exit_3(tmp_path, capsys):
+    """Issue 19: focal length 1e308 was accepted and undistorted every frame to nothing (0 vehicles, exit 0)."""
+    from vehicle_detection.camera import Camera
+
+    camera = _camera_file(tmp_path, _set("matrix.0.0", 1e308))
+    with pytest.raises(InputError) as info:
+        Camera.load(camera)
+    assert str(info.value) == (
+        f"{camera}: implausible camera file: matrix[0][0] (fx) = 1e+308 px is outside 0.1 to 10 times the image "
+        "width (128 to 12800 px for 1280x720 images)"
+    )
+
+
+def test_the_unchanged_camera_file_is_accepted(tmp_path, capsys):
+    """The baseline of the cases above passes every check (with a byte-order mark, too)."""
+    image = _road(tmp_path)
+    camera = _camera_file(tmp_path, text=lambda t: "\ufeff" + t)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
+    assert (code, err) == (0, [])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["camera.json", "road.png", "road_boxes.csv", "road_detected.png"]
+
+
+def test_cameras_made_in_code_are_checked_too():
+    from vehicle_detection.camera import Camera
+    from vehicle_detection.lanes import BirdsEye
+
+    good = Camera((1280, 720), CAMERA["matrix"], CAMERA["distortion"])
+    with pytest.raises(ValueError, match=r"^matrix\[0\]\[2\] \(cx\) = 5000: the principal point is outside"):
+        good.replace(matrix=[[1157.0, 0, 5000], [0, 1152.0, 388.0], [0, 0, 1]])
+    with pytest.raises(ValueError, match=r"folds the image"):
+        good.replace(distortion=[-5.0, 0, 0, 0, 0])
+    be = CAMERA["birds_eye"]
+    view = BirdsEye(be["src"], be["dst"], (1280, 720), (640, 360), be["xm_per_px"], be["ym_per_px"])
+    assert np.abs(view.to_warped(view.src) - view.dst).max() < 0.01
+    with pytest.raises(ValueError, match=r"^birds_eye\.image_size is 640x480, but the camera's image_size is 1280x720$"):
+        good.replace(birds_eye=BirdsEye([[60, 480], [290, 300], [350, 300], [580, 480]], be["dst"], (640, 480), (640, 360), 0.01, 0.1))
+    with pytest.raises(ValueError, match=r"^dst = .* must lie inside the 640x360 frame"):
+        BirdsEye(be["src"], [[160, 400], [160, 0], [480, 0], [480, 400]], (1280, 720), (640, 360), 0.01, 0.1)
+
+
+def test_calibrate_refuses_an_implausible_fit(monkeypatch):
+    import cv2
+
+    from test_camera import render_chessboards
+    from vehicle_detection.camera import calibrate
+
+    real = cv2.calibrateCamera
+
+    def absurd(*args, **kwargs):
+        rms, matrix, dist, rvecs, tvecs = real(*args, **kwargs)
+        matrix[0, 0] = 1e308
+        return rms, matrix, dist, rvecs, tvecs
+
+    monkeypatch.setattr(cv2, "calibrateCamera", absurd)
+    with pytest.raises(InputError, match=r"^the calibration from 4 photos gave an implausible camera \(matrix\[0\]\[0\] \(fx\) = 1e\+308 px"):
+        calibrate(render_chessboards(4))
+
+
+CAMERA_CAL = REPO.parent / "shared" / "data" / "camera_cal"
+STRAIGHT = [REPO.parent / "shared" / "data" / "lanes" / f"straight_lines{i}.jpg" for i in (1, 2)]
+
+
+@pytest.mark.skipif(not (CAMERA_CAL.is_dir() and all(p.is_file() for p in STRAIGHT)), reason="no chessboard photos or straight-road frames in ../shared/data")
+def test_the_real_calibrated_camera_passes_every_check(tmp_path, capsys):
+    from vehicle_detection.camera import Camera
+
+    camera = tmp_path / "camera.json"
+    code, _, err = run_main(capsys, "calibrate", CAMERA_CAL, "--straight", *STRAIGHT, "--out", camera)
+    assert (code, err) == (0, [])
+    loaded = Camera.load(camera)
+    assert loaded.birds_eye is not None and 0.5 < loaded.matrix[0, 0] / 1280 < 1.5
+    image = tmp_path / "test1.jpg"
+    shutil.copy(TEST_IMAGES / "test1.jpg", image)
+    code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
+    assert (code, err) == (0, [])
+    assert out[0].endswith("vehicles -> " + str(tmp_path / "test1_detected.jpg")) and not out[0].endswith(": 0 vehicles -> " + str(tmp_path / "test1_detected.jpg"))
+
+
+@pytest.mark.skipif(not all(p.is_file() for p in STRAIGHT), reason="no straight-road frames in ../shared/data")
+def test_straight_road_frames_giving_an_absurd_view_are_an_input_error():
+    from vehicle_detection.lanes import birds_eye_from_straight
+
+    frames = [read_image(p) for p in STRAIGHT]
+    with pytest.raises(InputError, match=r"^the straight-road frames give an implausible bird's-eye view: warped_size 8x8 must be at least 16 pixels"):
+        birds_eye_from_straight(frames, warped_size=(8, 8))
+
+
+# ----------------------------------------------------------------------------------------------
+# p. Labels files, through evaluate, train --labels and mine-negatives: exit 3, one line naming
+#    the file (and the frame and box), no model and no negatives written
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def labelled_inputs(tmp_path_factory):
+    """A 3-frame 1280x720 clip, a folder of two 1280x720 images, a tiny training set, and hostile
+    things for a labels file to name: an empty folder, a FIFO, a link to /dev/zero."""
+    if not TEST_VIDEO.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    root = tmp_path_factory.mktemp("labelled")
+    media.copy_packets(TEST_VIDEO, root / "clip.mp4", max_frames=3)
+    (root / "shots").mkdir()
+    for i in range(2):
+        save(root / "shots" / f"a{i}.png", picture(720, 1280, seed=i))
+    make_data(root / "data", 12, groups=6)
+    (root / "empty").mkdir()
+    if sys.platform != "win32":
+        os.mkfifo(root / "fifo.mp4")
+        (root / "zero.mp4").symlink_to("/dev/zero")
+    return root
+
+
+CAR = [100, 400, 300, 550]
+LABEL_COMMANDS = ("evaluate", "train", "mine")
+LABELS_CASES = [
+    # (case, video, frames or raw text, commands, fragment of the one-line error)
+    ("box_beyond_the_frame", "clip.mp4", {"0": {"cars": [[1200, 600, 1500, 900]]}}, LABEL_COMMANDS,
+     'frames["0"].cars[0] = [1200, 600, 1500, 900] reaches beyond the 1280x720 frame of {root}/clip.mp4'),
+    ("box_far_outside", "clip.mp4", {"0": {"cars": [CAR]}, "1": {"cars": [CAR, [5000, 5000, 5200, 5200]]}}, LABEL_COMMANDS,
+     'frames["1"].cars[1] = [5000, 5000, 5200, 5200] reaches beyond the 1280x720 frame'),
+    ("ignore_beyond_the_frame", "clip.mp4", {"0": {"cars": [CAR], "ignore": [[0, 0, 1281, 10]]}}, LABEL_COMMANDS,
+     'frames["0"].ignore[0] = [0, 0, 1281, 10] reaches beyond the 1280x720 frame'),
+    ("huge_box_in_range", "clip.mp4", {"0": {"cars": [[0, 0, 99999, 99999]]}}, LABEL_COMMANDS,
+     'frames["0"].cars[0] = [0, 0, 99999, 99999] reaches beyond'),
+    ("image_box_beyond", "shots", {"0": {"cars": [CAR]}, "1": {"cars": [[0, 0, 1280, 721]]}}, LABEL_COMMANDS,
+     'frames["1"].cars[0] = [0, 0, 1280, 721] reaches beyond the 1280x720 frame of {root}/shots/a1.png'),
+    ("frame_beyond_the_end", "clip.mp4", {"0": {"cars": [CAR]}, "99": {"cars": [CAR]}}, LABEL_COMMANDS,
+     "labels frame(s) 99, but {root}/clip.mp4 has only 3 decoded frames"),
+    ("image_beyond_the_folder", "shots", {"0": {"cars": [CAR]}, "5": {"cars": [CAR]}}, LABEL_COMMANDS,
+     "labels image 5, but {root}/shots has only 2 images"),
+    ("no_cars_to_train_on", "clip.mp4", {"0": {"cars": []}, "2": {"cars": []}}, ("train",),
+     "no labelled cars; the labels add vehicles"),
+    ("no_video", None, {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "the labels name no video"),
+    ("video_empty_string", "", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "'video' must be the path of a video or image folder"),
+    ("video_empty_folder", "empty", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/empty: no image files"),
+    ("video_missing", "nope.mp4", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/nope.mp4"),
+    ("video_dev_zero", "zero.mp4", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/zero.mp4: is a device, not a regular file (video file expected)"),
+    ("video_fifo", "fifo.mp4", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "{root}/fifo.mp4: is a FIFO (named pipe), not a regular file (video file expected)"),
+    ("video_is_a_labels_file", "data/../clip.json", {"0": {"cars": [CAR]}}, LABEL_COMMANDS, "not a readable video file"),
+    # the file itself
+    ("empty_file", "clip.mp4", "", LABEL_COMMANDS, "invalid JSON at line 1 column 1"),
+    ("not_utf8", "clip.mp4", b'{"frames": {"0": {"cars": []}}, "video": "\xff"}', LABEL_COMMANDS, "not UTF-8 text (byte 42); is this a JSON file?"),
+    ("duplicate_frames", "clip.mp4", '{"frames": {"0": {"cars": []}, "0": {"cars": []}}}', LABEL_COMMANDS, "duplicate key '0'"),
+    ("nan_coordinate", "clip.mp4", '{"frames": {"0": {"cars": [[NaN, 1, 2, 3]]}}}', LABEL_COMMANDS, "NaN is not a number allowed in annotations"),
+    ("inverted_box", "clip.mp4", {"0": {"cars": [[50, 10, 10, 60]]}}, LABEL_COMMANDS, "x2 (10) <= x1 (50)"),
+    ("cars_not_a_list", "clip.mp4", {"0": {"cars": "many"}}, LABEL_COMMANDS, 'frames["0"].cars must be a list of boxes'),
+    ("coordinate_1e300", "clip.mp4", {"0": {"cars": [[0, 0, 1e300, 10]]}}, LABEL_COMMANDS, "x2 = 1e+300 is outside 0.."),
+    ("negative_frame", "clip.mp4", {"-1": {"cars": []}}, LABEL_COMMANDS, 'frame key "-1" is not a non-negative integer'),
+    ("deeply_nested", "clip.mp4", '{"frames": ' + "[" * 100_000 + "]" * 100_000 + "}", LABEL_COMMANDS, "JSON nested too deeply"),
+]  # fmt: skip
+
+
+def _labels_file(folder: Path, root: Path, video, frames) -> Path:
+    import json
+
+    path = folder / "clip.json"
+    if isinstance(frames, bytes):
+        path.write_bytes(frames)
+    elif isinstance(frames, str):
+        path.write_text(frames.replace('{"frames"', f'{{"video": {json.dumps(str(root / "clip.mp4"))}, "frames"', 1) if frames else "")
+    else:
+        path.write_text(json.dumps({"video": None if video is None else (str(root / video) if video else ""), "frames": frames}))
+    return path
+
+
+def _labels_argv(command: str, labels: Path, root: Path, out: Path) -> list:
+    if command == "evaluate":
+        return ["evaluate", "--labels", labels, "--no-progress"]
+    if command == "train":
+        return ["train", "--data-dir", root / "data", "--labels", labels, "--model", out / "model.npz"]
+    return ["mine-negatives", "--labels", labels, "--out", out / "negatives", "--no-progress"]
+
+
+@posix_only
+@pytest.mark.timeout(120)  # a FIFO opened for reading would block
+@pytest.mark.parametrize(
+    ("case", "command", "video", "frames", "problem"),
+    [(case, command, video, frames, problem) for case, video, frames, commands, problem in LABELS_CASES for command in commands],
+    ids=[f"{c[0]}-{command}" for c in LABELS_CASES for command in c[3]],
+)
+def test_labels_file_faults(tmp_path, capsys, labelled_inputs, case, command, video, frames, problem):
+    root = labelled_inputs
+    labels = _labels_file(tmp_path, root, video, frames)
+    if case == "video_is_a_labels_file":  # the labels name themselves as the video
+        labels.write_text(labels.read_text().replace(str(root / "data/../clip.json"), str(labels)))
+    before, inputs_before = snapshot(tmp_path), snapshot(root)
+    code, _, err = run_main(capsys, *_labels_argv(command, labels, root, tmp_path))
+    err = [line for line in err if not line.endswith(": frame 0")]  # mine-negatives' progress
+    assert code == 3
+    assert len(err) == 1 and err[0].startswith(ERROR) and problem.format(root=root) in err[0], err
+    assert snapshot(tmp_path) == before and snapshot(root) == inputs_before  # no model, no negatives
+
+
+@posix_only
+def test_labels_file_that_is_not_a_regular_file(tmp_path, capsys):
+    fifo = tmp_path / "labels.json"
+    os.mkfifo(fifo)
+    folder = tmp_path / "folder.json"
+    folder.mkdir()
+    code, _, err = run_main(capsys, "evaluate", "--labels", fifo)
+    assert (code, err) == (3, [f"{ERROR}{fifo}: is a FIFO (named pipe), not a regular file (annotation file expected)"])
+    code, _, err = run_main(capsys, "mine-negatives", "--labels", folder, "--out", tmp_path / "neg")
+    assert (code, err) == (3, [f"{ERROR}{folder}: is a folder, not a regular file (annotation file expected)"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.json", "labels.json"]
+
+
+def test_labels_inside_the_frame_are_accepted(tmp_path, capsys, labelled_inputs):
+    """The boundary of the box check: x2 and y2 are exclusive, so x2 = 1280, y2 = 720 fit."""
+    labels = _labels_file(tmp_path, labelled_inputs, "shots", {"0": {"cars": [[1180, 620, 1280, 720]]}, "1": {"cars": [CAR]}})
+    code, out, err = run_main(capsys, "evaluate", "--labels", labels, "--no-progress")
+    assert (code, err) == (0, []) and out[0] == f"{labels}: 2 frames, 2 cars"
+
+
+# ----------------------------------------------------------------------------------------------
+# q. Model files, correctly signed but absurd, or not files at all: exit 4, one line
+# ----------------------------------------------------------------------------------------------
+
+
+def _signed_model(path: Path, change_arrays=None, change_meta=None) -> Path:
+    """The embedded model with some arrays or header fields changed, and signed again: only the
+    plausibility checks can refuse it."""
+    import json
+
+    from vehicle_detection.classifier import _digest, default_model_path
+
+    with np.load(default_model_path(), allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files if k != "meta"}
+        meta = json.loads(npz["meta"].tobytes())
+    if change_arrays:
+        change_arrays(arrays)
+    if change_meta:
+        change_meta(meta)
+    meta["sha256"] = _digest(arrays, meta)
+    np.savez(path, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    return path
+
+
+def _array(name, value):
+    def change(a):
+        a[name] = np.full_like(a[name], value) if np.ndim(value) == 0 else np.asarray(value)
+
+    return change
+
+
+def _plan(key, value, scale=None):
+    def change(meta):
+        plan = meta["detector_config"]["plan"]
+        (plan["scales"][0] if scale else plan)[key] = value
+
+    return change
+
+
+MODEL_CASES = [
+    ("coef_1e300", _array("coef", 1e300), None, "array coef holds 1e+300; a model's numbers are at most 1e+09 in magnitude"),
+    ("intercept_1e308", _array("intercept", 1e308), None, "array intercept holds 1e+308; a model's numbers are at most 1e+09"),
+    ("scaler_mean_1e308", _array("scaler_mean", 1e308), None, "array scaler_mean holds 1e+308"),
+    ("scale_1e-300", _array("scaler_scale", 1e-300), None, "coef / scaler_scale reaches"),
+    ("box_coef_1e300", _array("box_coef", 1e300), None, "array box_coef holds 1e+300"),
+    ("box_coef_nan", _array("box_coef", np.nan), None, "box regressor weights must be finite"),
+    ("box_coef_transposed", lambda a: a.update(box_coef=np.ascontiguousarray(a["box_coef"].T)), None, "box refinement arrays are float64 (10272, 4) and float64 (4,), expected float64 (4, 10272) and (4,)"),
+    ("box_intercept_5", _array("box_intercept", np.zeros(5)), None, "box refinement arrays are float64 (4, 10272) and float64 (5,)"),
+    ("box_coef_float32", lambda a: a.update(box_coef=a["box_coef"].astype(np.float32)), None, "box refinement arrays are float32 (4, 10272)"),
+    ("coef_int64", lambda a: a.update(coef=a["coef"].astype(np.int64)), None, "array coef is int64 (10272,), expected float64 (10272,)"),
+    ("library_version_5000_digits", None, lambda m: m.update(library_version="9" * 5000), "library_version in the header must be a version string"),
+    ("library_version_object", None, lambda m: m.update(library_version={"a": 1}), "library_version in the header must be a version string"),
+    ("plan_scale_1e-9", None, _plan("scale", 1e-9, scale=True), "scale must be within 0.25..32 (windows of 16 to 2048 pixels), got 1e-09"),
+    ("plan_scale_1e9", None, _plan("scale", 1e9, scale=True), "scale must be within 0.25..32"),
+    ("plan_threshold_nan", None, _plan("threshold", float("nan")), "threshold must be a finite number, got nan"),
+    ("plan_reference_height_1e6", None, _plan("reference_height", 10**6), "reference_height must be 64 to 1440 pixels, got 1000000"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("case", "arrays", "meta", "problem"), MODEL_CASES, ids=[c[0] for c in MODEL_CASES])
+def test_signed_but_absurd_model_files_are_refused(tmp_path, capsys, case, arrays, meta, problem):
+    img = save(tmp_path / "street.png", picture())
+    model = _signed_model(tmp_path / "model.npz", arrays, meta)
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "detect", img, "--model", model)
+    assert code == 4
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{model}: ") and problem in err[0], err
+    assert out == [] and snapshot(tmp_path) == before
+
+
+def test_re_signed_unchanged_model_is_accepted(tmp_path, capsys):
+    """The baseline of the cases above: signing again changes nothing."""
+    img = save(tmp_path / "street.png", picture())
+    model = _signed_model(tmp_path / "model.npz")
+    assert run_main(capsys, "detect", img, "--model", model)[:2] == (0, [f"{img}: 0 vehicles -> {tmp_path / 'street_detected.png'}", f"boxes: {tmp_path / 'street_boxes.csv'}"])
+
+
+@posix_only
+@pytest.mark.timeout(120)  # a FIFO opened for reading would block
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "folder"])
+def test_model_path_that_is_not_a_regular_file(tmp_path, capsys, kind):
+    img = save(tmp_path / "street.png", picture())
+    model = tmp_path / "model.npz"
+    if kind == "fifo":
+        os.mkfifo(model)
+    elif kind == "dev_zero":
+        model.symlink_to("/dev/zero")
+    else:
+        model.mkdir()
+    before = snapshot(tmp_path)
+    code, _, err = run_main(capsys, "detect", img, "--model", model)
+    what = {"fifo": "is a FIFO (named pipe), not", "dev_zero": "is a device, not", "folder": "is a folder, not"}[kind]
+    assert (code, err) == (4, [f"{ERROR}{model}: {what} a regular file (model file expected)"])
+    assert snapshot(tmp_path) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# r. Mined-negative folders (train --extra-negatives): exit 3, one line naming the entry, no model
+# ----------------------------------------------------------------------------------------------
+
+
+def _negatives(folder: Path, n: int = 6) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        (folder / f"n{i}.png").write_bytes(_png(500 + i))
+    return folder
+
+
+def _neg_case(kind: str, tmp: Path) -> tuple[Path, str]:
+    """The folder for ``--extra-negatives`` and the expected message after ``ERROR``."""
+    neg = tmp / "neg"
+    if kind == "a_file":
+        neg.parent.mkdir(parents=True, exist_ok=True)
+        neg.write_bytes(_png(1))
+        return neg, f"{neg}: not a folder; --extra-negatives takes folders of 64x64 PNG negatives"
+    if kind == "missing":
+        return neg, f"{neg}: extra negatives folder not found"
+    if kind == "empty":
+        neg.mkdir(parents=True)
+        return neg, f"{neg}: no PNG images in this extra negatives folder"
+    if kind == "only_jpegs":
+        neg.mkdir(parents=True)
+        save(neg / "a.jpg", picture(64, 64))
+        return neg, f"{neg}: no PNG images in this extra negatives folder"
+    _negatives(neg)
+    bad = neg / "bad.png"
+    if kind == "not_an_image":
+        bad.write_text("hello")
+        return neg, f"{bad}: not an image (or a format Pillow cannot read)"
+    if kind == "wrong_size":
+        save(bad, picture(100, 100))
+        return neg, f"{bad}: training patches must be 64x64, got 100x100"
+    if kind == "link_to_dev_zero":
+        bad.symlink_to("/dev/zero")
+        return neg, f"{bad}: is a device, not a regular file (PNG image expected)"
+    if kind == "fifo":
+        os.mkfifo(bad)
+        return neg, f"{bad}: is a FIFO (named pipe), not a regular file (PNG image expected)"
+    if kind == "dangling_link":
+        bad.symlink_to(tmp / "gone.png")
+        return neg, f"{bad}: a symlink to nothing in an extra negatives folder; remove it"
+    if kind == "folder_named_png":
+        bad.mkdir()
+        (bad / "inner.png").write_bytes(_png(7))
+        (bad / "odd.png").write_text("not a png")
+        return neg, f"{bad / 'odd.png'}: not an image (or a format Pillow cannot read)"
+    if kind == "vehicles_inside":
+        (neg / "vehicles").mkdir()
+        (neg / "vehicles" / "v.png").write_bytes(_png(9))
+        return neg, f"{neg / 'vehicles' / 'v.png'}: an extra negatives folder may not hold a vehicles/ folder; only negatives are added"
+    raise AssertionError(kind)
+
+
+NEGATIVE_KINDS = ["a_file", "missing", "empty", "only_jpegs", "not_an_image", "wrong_size", "link_to_dev_zero", "fifo",
+                  "dangling_link", "folder_named_png", "vehicles_inside"]  # fmt: skip
+
+
+@posix_only
+@pytest.mark.timeout(120)  # a FIFO opened for reading would block
+@pytest.mark.parametrize("kind", NEGATIVE_KINDS)
+def test_extra_negatives_folder_faults(tmp_path, capsys, kind):
+    data = make_data(tmp_path / "data", 12, groups=6)
+    neg, message = _neg_case(kind, tmp_path / "in")
+    before = snapshot(tmp_path)
+    code, out, err = run_main(capsys, "train", "--data-dir", data, "--extra-negatives", neg, "--model", tmp_path / "model.npz")
+    assert (code, err) == (3, [f"{ERROR}{message}"])
+    assert out == [] and snapshot(tmp_path) == before
+
+
+def test_extra_negatives_through_a_symlinked_file_are_accepted(tmp_path, capsys):
+    data = make_data(tmp_path / "data", 12, groups=6)
+    neg = _negatives(tmp_path / "neg")
+    (neg / "linked.png").symlink_to(_negatives(tmp_path / "elsewhere", 1) / "n0.png")
+    code, _, err = run_main(capsys, "train", "--data-dir", data, "--extra-negatives", neg, "--model", tmp_path / "model.npz", "--json")
+    assert (code, err) == (0, [])
+    from vehicle_detection.classifier import VehicleClassifier
+
+    assert VehicleClassifier.load(tmp_path / "model.npz").metrics["extra_negatives"] == {"non-vehicles/neg": 7}
+
+
+# ----------------------------------------------------------------------------------------------
+# s. Text inputs that are devices are refused before they are read (were read until memory ran
+#    out): run in a child process with a memory limit, so that a regression fails, not the machine
+# ----------------------------------------------------------------------------------------------
+
+DEVICE_CHILD = r"""
+import contextlib, io, json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+from vehicle_detection.cli import main
+out = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(argv)
+    out.append([code, err.getvalue().splitlines()])
+print(json.dumps(out))
+"""
+
+
+@posix_only
+def test_inputs_linked_to_dev_zero_are_refused_without_reading(tmp_path):
+    import json
+
+    img = save(tmp_path / "street.png", picture())
+    zero = {name: tmp_path / name for name in ("camera.json", "labels.json", "boxes.csv", "image.png")}
+    for link in zero.values():
+        link.symlink_to("/dev/zero")
+    (tmp_path / "ok.json").write_text(json.dumps({"video": str(img.parent), "frames": {"0": {"cars": []}}}))
+    cases = [
+        (["detect", img, "--camera", zero["camera.json"]], 3, f"{zero['camera.json']}: is a device, not a regular file (camera file expected)"),
+        (["evaluate", "--labels", zero["labels.json"]], 3, f"{zero['labels.json']}: is a device, not a regular file (annotation file expected)"),
+        (["evaluate", "--labels", tmp_path / "ok.json", "--boxes", zero["boxes.csv"]], 3, f"{zero['boxes.csv']}: is a device, not a regular file (boxes file expected)"),
+        (["detect", zero["image.png"]], 3, f"{zero['image.png']}: is a device, not a regular file (image file expected)"),
+    ]  # fmt: skip
+    before = snapshot(tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-c", DEVICE_CHILD, json.dumps([[str(a) for a in argv] for argv, _, _ in cases])],
+        capture_output=True, text=True, timeout=300, cwd=REPO,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    results = json.loads(proc.stdout.splitlines()[-1])
+    assert results == [[code, [ERROR + message]] for _, code, message in cases]
+    assert snapshot(tmp_path) == before

@@ -35,7 +35,9 @@ __all__ = [
     "output_batch",
     "interrupt_on_signals",
     "read_text",
+    "input_file",
     "PARTIAL_SUFFIX",
+    "MAX_TEXT_BYTES",
 ]
 
 PARTIAL_SUFFIX = ".partial"
@@ -329,12 +331,52 @@ def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP"
 # --- reading -----------------------------------------------------------------------------------
 
 
+#: Largest text input read (a labels, camera or boxes file), bytes.
+MAX_TEXT_BYTES = 256 * 1024 * 1024
+
+
+def input_file(path: str | os.PathLike, what: str, error: type[InputError] = InputError) -> os.stat_result:
+    """Check that ``path`` (a symlink is followed) is a regular file that can be read.
+
+    A device (``/dev/zero``), a FIFO or a socket would be read forever, or block: they are
+    refused before they are opened, as are folders and missing files.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file is, for messages (``"camera file"``).
+    error : type
+        The :class:`InputError` subclass raised (:class:`~vehicle_detection.errors.ModelError`
+        for model files).
+
+    Returns
+    -------
+    os.stat_result
+        Of the file (after following symlinks).
+    """
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"{path}: is a folder, not a regular file ({what} expected)")
+    if not stat.S_ISREG(st.st_mode):
+        kind = _special_kind(path.resolve()) or "not a regular file"
+        raise error(f"{path}: is {kind}, not a regular file ({what} expected)")
+    return st
+
+
 def read_text(path: str | os.PathLike, what: str, kind: str, *, encoding: str = "utf-8") -> str:
     """Read a text input, turning every failure into an :class:`InputError` naming the file.
 
     Parameters
     ----------
     path : path-like
+        A regular file (or a symlink to one) of at most :data:`MAX_TEXT_BYTES`.
     what : str
         What the file is, for messages (``"annotation file"``).
     kind : str
@@ -343,9 +385,12 @@ def read_text(path: str | os.PathLike, what: str, kind: str, *, encoding: str = 
         ``"utf-8-sig"`` also accepts a byte-order mark.
     """
     path = Path(path)
+    st = input_file(path, what)
+    if st.st_size > MAX_TEXT_BYTES:
+        raise InputError(f"{path}: {what} of {st.st_size} bytes is larger than the {MAX_TEXT_BYTES // 2**20} MiB a {kind} input may be")
     try:
         with open(path, encoding=encoding, newline=None) as fh:
-            return fh.read()
+            return fh.read(MAX_TEXT_BYTES + 1)
     except FileNotFoundError:
         raise InputError(f"{path}: {what} not found") from None
     except IsADirectoryError:

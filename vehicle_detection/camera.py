@@ -13,11 +13,27 @@ the matrix, the distortion coefficients, the RMS reprojection error in pixels, a
 were used, cropped or skipped. :meth:`Camera.undistort` uses a remap table computed once per
 camera. A camera file may also carry the bird's-eye transform of
 :mod:`vehicle_detection.lanes` (``birds_eye``), derived from straight-road frames.
+
+A :class:`Camera` is checked for plausibility when it is made (from a file, by :func:`calibrate`
+or in code), so that a finite but absurd file cannot undistort every frame to nothing:
+
+- the focal lengths ``fx`` and ``fy`` lie within :data:`FOCAL_RANGE` times the image width
+  (horizontal fields of view of about 6 to 160 degrees), and ``fy / fx`` within 0.5 to 2;
+- the principal point lies inside the image; the matrix has no skew and its last row is
+  ``[0, 0, 1]`` (OpenCV's lens model);
+- the distortion keeps at least :data:`MIN_VALID_FRACTION` of the undistorted frame inside the
+  original image, and is one-to-one out to the image's corners (the remap never folds back);
+- a bird's-eye transform is made for the same image size and is itself plausible (see
+  :class:`~vehicle_detection.lanes.BirdsEye`).
+
+:meth:`Camera.load` reads each field strictly and names the field at fault: a bad file is an
+:class:`~vehicle_detection.errors.InputError` (exit status 3) of one line.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections import Counter
 from dataclasses import dataclass, field
@@ -30,10 +46,17 @@ import numpy as np
 from ._files import atomic_output, read_text
 from .errors import InputError
 
-__all__ = ["Camera", "calibrate", "find_chessboard", "MAX_CROP"]
+__all__ = ["Camera", "calibrate", "find_chessboard", "MAX_CROP", "FOCAL_RANGE", "MIN_VALID_FRACTION", "MAX_IMAGE_SIDE"]
 
 #: Largest difference (pixels, per dimension) from the majority size that is cropped away.
 MAX_CROP = 2
+#: Plausible focal lengths in multiples of the image width: horizontal fields of view of about
+#: 160 degrees (0.1) to 6 degrees (10). The project camera's is 0.90.
+FOCAL_RANGE = (0.1, 10.0)
+#: Smallest share of the undistorted frame that must come from inside the original image.
+MIN_VALID_FRACTION = 0.5
+#: Largest image side a camera file may give, pixels.
+MAX_IMAGE_SIDE = 65536
 _FORMAT = "vehicle-detection camera 1"
 
 
@@ -95,6 +118,80 @@ def _board_inside(corners: np.ndarray, pattern: tuple[int, int], width: int, hei
     return bool(np.all(margin >= 0.5 * square))
 
 
+def _distort(matrix: np.ndarray, distortion: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Pixel positions in the undistorted image -> the original image, ``(n, 2)`` (the remap's source)."""
+    import cv2
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    norm = (pts - matrix[:2, 2]) / np.diag(matrix)[:2]
+    obj = np.c_[norm, np.ones(len(norm))]
+    out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), matrix, distortion)
+    return out.reshape(-1, 2)
+
+
+def _implausible(w: int, h: int, m: np.ndarray, d: np.ndarray) -> str:
+    """Why a finite camera matrix and distortion cannot be a real camera of ``w x h`` images ("" if they can).
+
+    The message starts with the field at fault, as a camera file names it.
+    """
+    fx, fy, cx, cy = m[0, 0], m[1, 1], m[0, 2], m[1, 2]
+    lo, hi = FOCAL_RANGE
+    for field_, f in (("matrix[0][0] (fx)", fx), ("matrix[1][1] (fy)", fy)):
+        if not lo * w <= f <= hi * w:
+            return (
+                f"{field_} = {f:.6g} px is outside {lo:g} to {hi:g} times the image width "
+                f"({lo * w:.6g} to {hi * w:.6g} px for {w}x{h} images)"
+            )
+    if not 0.5 <= fy / fx <= 2:
+        return f"matrix[1][1] / matrix[0][0] (fy / fx) = {fy / fx:.3g} is outside 0.5 to 2"
+    if not 0 <= cx <= w:
+        return f"matrix[0][2] (cx) = {cx:.6g}: the principal point is outside the image (0 to {w} px)"
+    if not 0 <= cy <= h:
+        return f"matrix[1][2] (cy) = {cy:.6g}: the principal point is outside the image (0 to {h} px)"
+    if abs(m[0, 1]) > 1e-6 * fx:
+        return f"matrix[0][1] (skew) = {m[0, 1]:.6g} must be 0 (OpenCV's lens model has no skew)"
+    if m[1, 0] != 0:
+        return f"matrix[1][0] = {m[1, 0]:.6g} must be 0 (a pinhole camera matrix)"
+    if not np.array_equal(m[2], [0.0, 0.0, 1.0]):
+        return f"matrix[2] = {m[2].tolist()} must be [0, 0, 1] (a pinhole camera matrix)"
+    # The undistorted frame takes each pixel from the remap's source in the original image:
+    # most of those must lie inside it, ...
+    xs, ys = np.meshgrid(np.linspace(0, w - 1, 65), np.linspace(0, h - 1, 37))
+    src = _distort(m, d, np.c_[xs.ravel(), ys.ravel()])
+    inside = np.isfinite(src).all(axis=1) & (src[:, 0] >= -0.5) & (src[:, 0] <= w - 0.5) & (src[:, 1] >= -0.5) & (src[:, 1] <= h - 0.5)
+    if inside.mean() < MIN_VALID_FRACTION:
+        return (
+            f"distortion {d.tolist()} takes {1 - inside.mean():.0%} of the undistorted frame from outside the image "
+            f"(at most {1 - MIN_VALID_FRACTION:.0%} may be)"
+        )
+    # ... and the remap may not fold over (a polynomial lens model turns round beyond its range):
+    # neighbouring pixels keep their order (the Jacobian of the remap stays positive), ...
+    grid = src.reshape(xs.shape + (2,))
+    across, down = grid[:-1, 1:] - grid[:-1, :-1], grid[1:, :-1] - grid[:-1, :-1]
+    det = across[..., 0] * down[..., 1] - across[..., 1] * down[..., 0]
+    folded = np.argwhere(~(det > 0))
+    if folded.size:
+        y, x = folded[0]
+        return (
+            f"distortion {d.tolist()} folds the image over near ({xs[y, x]:.0f}, {ys[y, x]:.0f}) "
+            "(the lens model is not one-to-one there)"
+        )
+    # ... and along each ray from the principal point to a corner the source moves steadily outward.
+    t = np.linspace(0, 1, 257)[1:, None]
+    for name, corner in (("top-left", (0, 0)), ("top-right", (w - 1, 0)), ("bottom-left", (0, h - 1)), ("bottom-right", (w - 1, h - 1))):
+        ray = np.array([cx, cy]) + t * (np.array(corner, float) - [cx, cy])
+        if np.allclose(ray[-1], [cx, cy]):
+            continue  # the principal point is this corner
+        r = np.hypot(*(_distort(m, d, ray) - [cx, cy]).T)
+        bad = np.flatnonzero(~np.isfinite(r[1:]) | (np.diff(r) <= 0))
+        if bad.size:
+            return (
+                f"distortion {d.tolist()} folds the image: the remap turns back {float(t[bad[0] + 1, 0]):.0%} of the way "
+                f"from the principal point to the {name} corner (the lens model is not one-to-one there)"
+            )
+    return ""
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated camera: intrinsic matrix and distortion, for one image size.
@@ -117,6 +214,12 @@ class Camera:
         RMS reprojection error of each photo used, pixels (outliers show here).
     birds_eye : BirdsEye or None
         The perspective transform to the road plane (:mod:`vehicle_detection.lanes`), if known.
+
+    Raises
+    ------
+    ValueError
+        If the matrix or distortion is not finite or of the wrong shape, or describes no real
+        camera of ``image_size`` (see the module docstring); the message names the field.
     """
 
     image_size: tuple[int, int]
@@ -135,8 +238,14 @@ class Camera:
         if m.shape != (3, 3) or not np.all(np.isfinite(m)) or not np.all(np.isfinite(d)) or d.size not in (4, 5, 8, 12, 14):
             raise ValueError("camera matrix must be finite 3x3 and distortion 4, 5, 8, 12 or 14 finite numbers")
         w, h = (int(v) for v in self.image_size)
-        if w < 1 or h < 1:
-            raise ValueError(f"image_size must be positive (width, height); got {self.image_size}")
+        if not (1 <= w <= MAX_IMAGE_SIDE and 1 <= h <= MAX_IMAGE_SIDE):
+            raise ValueError(f"image_size must be (width, height), each 1 to {MAX_IMAGE_SIDE} pixels; got {self.image_size}")
+        problem = _implausible(w, h, m, d)
+        if problem:
+            raise ValueError(problem)
+        if self.birds_eye is not None and tuple(self.birds_eye.image_size) != (w, h):
+            bw, bh = self.birds_eye.image_size
+            raise ValueError(f"birds_eye.image_size is {bw}x{bh}, but the camera's image_size is {w}x{h}")
         m.setflags(write=False)
         d.setflags(write=False)
         set_ = object.__setattr__
@@ -185,13 +294,7 @@ class Camera:
 
     def distort_points(self, points) -> np.ndarray:
         """Pixel positions in the undistorted image -> the original (distorted) image, ``(n, 2)``."""
-        import cv2
-
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        norm = (pts - self.matrix[:2, 2]) / np.diag(self.matrix)[:2]
-        obj = np.c_[norm, np.ones(len(norm))]
-        out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.matrix, self.distortion)
-        return out.reshape(-1, 2)
+        return _distort(self.matrix, self.distortion, points)
 
     def boxes_to_original(self, xyxy, samples: int = 9) -> np.ndarray:
         """Boxes found in undistorted frames -> the boxes enclosing them in the original frames.
@@ -240,43 +343,164 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: dict, name: str = "camera") -> Camera:
+        """A camera from the contents of a camera file, every field checked.
+
+        Raises
+        ------
+        InputError
+            One line naming ``name`` and the field at fault: a missing or mistyped field
+            ("malformed camera file"), or values no real camera has ("implausible camera file",
+            see the module docstring).
+        """
         if not isinstance(d, dict) or d.get("format") != _FORMAT:
             raise InputError(f"{name}: not a camera file (expected \"format\": \"{_FORMAT}\")")
         try:
+            size = _whole_numbers(_get(d, "image_size"), "image_size", 2)
+            matrix = _numbers(_get(d, "matrix"), "matrix", (3, 3))
+            distortion = _numbers(_get(d, "distortion"), "distortion", (None,))
+            if len(distortion) not in (4, 5, 8, 12, 14):
+                raise _Malformed(f"distortion has {len(distortion)} coefficients; OpenCV's models have 4, 5, 8, 12 or 14")
+            rms = d.get("rms")
+            if rms is None or (isinstance(rms, float) and math.isnan(rms)):
+                rms = float("nan")  # unknown (a camera made in code)
+            else:
+                rms = _number(rms, "rms")
+                if rms < 0:
+                    raise _Malformed(f"rms = {rms:g} must be >= 0")
+            images_used = _strings(d.get("images_used", []), "images_used")
+            images_cropped = _strings(d.get("images_cropped", []), "images_cropped")
+            skipped = _mapping(d.get("images_skipped", {}), "images_skipped", _string)
+            per_image = _mapping(d.get("per_image_rms", {}), "per_image_rms", _number)
+            birds_eye_doc = d.get("birds_eye")
+            if birds_eye_doc is not None and not isinstance(birds_eye_doc, dict):
+                raise _Malformed(f"birds_eye must be an object or null, got {_show(birds_eye_doc)}")
+            if birds_eye_doc is not None:
+                be_size = _whole_numbers(_get(birds_eye_doc, "image_size", "birds_eye."), "birds_eye.image_size", 2)
+                if be_size != size:
+                    raise _Malformed(f"birds_eye.image_size is {be_size[0]}x{be_size[1]}, but the camera's image_size is {size[0]}x{size[1]}")
+                be = {
+                    "src": _numbers(_get(birds_eye_doc, "src", "birds_eye."), "birds_eye.src", (4, 2)),
+                    "dst": _numbers(_get(birds_eye_doc, "dst", "birds_eye."), "birds_eye.dst", (4, 2)),
+                    "image_size": _whole_numbers(_get(birds_eye_doc, "image_size", "birds_eye."), "birds_eye.image_size", 2),
+                    "warped_size": _whole_numbers(_get(birds_eye_doc, "warped_size", "birds_eye."), "birds_eye.warped_size", 2),
+                    "xm_per_px": _number(_get(birds_eye_doc, "xm_per_px", "birds_eye."), "birds_eye.xm_per_px"),
+                    "ym_per_px": _number(_get(birds_eye_doc, "ym_per_px", "birds_eye."), "birds_eye.ym_per_px"),
+                }
+        except _Malformed as exc:
+            raise InputError(f"{name}: malformed camera file: {exc}") from None
+        try:
             birds_eye = None
-            if d.get("birds_eye") is not None:
+            if birds_eye_doc is not None:
                 from .lanes import BirdsEye
 
-                birds_eye = BirdsEye.from_dict(d["birds_eye"])
-            rms = d.get("rms")
+                try:
+                    birds_eye = BirdsEye(**be)
+                except ValueError as exc:
+                    raise ValueError(f"birds_eye.{exc}") from None
             return cls(
-                image_size=tuple(d["image_size"]),
-                matrix=d["matrix"],
-                distortion=d["distortion"],
-                rms=float("nan") if rms is None else float(rms),
-                images_used=tuple(map(str, d.get("images_used", ()))),
-                images_cropped=tuple(map(str, d.get("images_cropped", ()))),
-                images_skipped={str(k): str(v) for k, v in dict(d.get("images_skipped", {})).items()},
+                image_size=tuple(size),
+                matrix=matrix,
+                distortion=distortion,
+                rms=rms,
+                images_used=tuple(images_used),
+                images_cropped=tuple(images_cropped),
+                images_skipped=skipped,
                 birds_eye=birds_eye,
-                per_image_rms={str(k): float(v) for k, v in dict(d.get("per_image_rms", {})).items()},
+                per_image_rms=per_image,
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{name}: malformed camera file: {exc}") from None
+        except ValueError as exc:
+            raise InputError(f"{name}: implausible camera file: {exc}") from None
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Camera:
-        """Read a camera file written by :meth:`save`."""
-        text = read_text(path, "camera file", "JSON")
+        """Read a camera file written by :meth:`save` (checked as :meth:`from_dict` says)."""
+        text = read_text(path, "camera file", "JSON", encoding="utf-8-sig")
         try:
             d = json.loads(text)
         except ValueError as exc:
             raise InputError(f"{path}: not a camera file: invalid JSON ({exc})") from None
+        except RecursionError:
+            raise InputError(f"{path}: not a camera file: JSON nested too deeply") from None
         return cls.from_dict(d, str(path))
 
     def replace(self, **changes) -> Camera:
         from dataclasses import replace
 
         return replace(self, **changes)
+
+
+# --- strict reading of camera files --------------------------------------------------------------
+
+
+class _Malformed(ValueError):
+    """A field of a camera file is missing or of the wrong type (the message names it)."""
+
+
+def _show(value: Any) -> str:
+    text = json.dumps(value) if isinstance(value, (dict, list, str, int, float, bool, type(None))) else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _get(d: dict, key: str, prefix: str = "") -> Any:
+    if key not in d:
+        raise _Malformed(f"no {prefix}{key!r}")
+    return d[key]
+
+
+def _number(value: Any, field_: str) -> float:
+    """A finite JSON number (not a boolean)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _Malformed(f"{field_} must be a number, got {_show(value)}")
+    try:
+        out = float(value)
+    except OverflowError:
+        raise _Malformed(f"{field_} = {_show(value)} is too large") from None
+    if not math.isfinite(out):
+        raise _Malformed(f"{field_} must be a finite number, got {out}")
+    return out
+
+
+def _numbers(value: Any, field_: str, shape: tuple) -> list:
+    """Nested lists of finite numbers of ``shape`` (``None``: any length >= 1)."""
+    n = shape[0]
+    if not isinstance(value, list) or (n is not None and len(value) != n) or not value:
+        what = f"a list of {n or ''} numbers".replace("  ", " ") if len(shape) == 1 else f"{n} lists of {shape[1]} numbers"
+        raise _Malformed(f"{field_} must be {what}, got {_show(value)}")
+    if len(shape) == 1:
+        return [_number(v, f"{field_}[{i}]") for i, v in enumerate(value)]
+    return [_numbers(v, f"{field_}[{i}]", shape[1:]) for i, v in enumerate(value)]
+
+
+def _whole_numbers(value: Any, field_: str, n: int) -> list[int]:
+    """``n`` whole numbers from 1 to :data:`MAX_IMAGE_SIDE` (a size in pixels)."""
+    if not isinstance(value, list) or len(value) != n:
+        raise _Malformed(f"{field_} must be {n} whole numbers (width, height), got {_show(value)}")
+    out = []
+    for i, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not v.is_integer()):
+            raise _Malformed(f"{field_}[{i}] must be a whole number of pixels, got {_show(v)}")
+        if not 1 <= v <= MAX_IMAGE_SIDE:
+            raise _Malformed(f"{field_}[{i}] = {_show(v)} is outside 1 to {MAX_IMAGE_SIDE} pixels")
+        out.append(int(v))
+    return out
+
+
+def _string(value: Any, field_: str) -> str:
+    if not isinstance(value, str):
+        raise _Malformed(f"{field_} must be a string, got {_show(value)}")
+    return value
+
+
+def _strings(value: Any, field_: str) -> list[str]:
+    if not isinstance(value, list):
+        raise _Malformed(f"{field_} must be a list of file names, got {_show(value)}")
+    return [_string(v, f"{field_}[{i}]") for i, v in enumerate(value)]
+
+
+def _mapping(value: Any, field_: str, parse) -> dict:
+    if not isinstance(value, dict):
+        raise _Malformed(f"{field_} must be an object (file name: value), got {_show(value)}")
+    return {k: parse(v, f"{field_}[{json.dumps(k)}]") for k, v in value.items()}
 
 
 def calibrate(
@@ -355,6 +579,12 @@ def calibrate(
             f"{pattern[0]}x{pattern[1]} chessboard (at least 3 needed){' (' + why + ')' if len(why) < 300 else ''}"
         )
     rms, matrix, dist, rvecs, tvecs = cv2.calibrateCamera(object_points, image_points, (width, height), None, None)
+    problem = _implausible(width, height, matrix, dist.reshape(-1)) if np.all(np.isfinite(matrix)) and np.all(np.isfinite(dist)) else "not finite"
+    if problem:
+        raise InputError(
+            f"the calibration from {len(used)} photos gave an implausible camera ({problem}); "
+            "use more photos, with the board in every part of the frame"
+        )
     per_image = {}
     for name, o, i, r, t in zip(used, object_points, image_points, rvecs, tvecs):
         p, _ = cv2.projectPoints(o, r, t, matrix, dist)

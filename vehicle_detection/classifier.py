@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from ._files import atomic_output
+from ._files import atomic_output, input_file
 from .config import DetectorConfig
 from .data import Dataset
 from .errors import ModelError
@@ -70,6 +70,27 @@ def _version_tuple(v: str) -> tuple[int, ...]:
         digits = "".join(itertools.takewhile(str.isdigit, part))
         out.append(int(digits) if digits else 0)
     return tuple(out)
+
+
+#: Largest magnitude of any number of a model's linear maps, and of its folded weights and bias
+#: (trained ones stay far below: the embedded model's largest is 1,802, a feature mean); far
+#: larger ones overflow the float32 scores.
+MAX_MODEL_VALUE = 1e9
+
+
+def _implausible_weights(arrays: dict[str, np.ndarray]) -> str:
+    """Why the arrays of a model file cannot be a trained model ("" if they can)."""
+    for name, a in arrays.items():
+        top = float(np.max(np.abs(a))) if a.size else 0.0
+        if top > MAX_MODEL_VALUE:
+            return f"array {name} holds {top:.3g}; a model's numbers are at most {MAX_MODEL_VALUE:g} in magnitude"
+    if "coef" not in arrays:
+        return ""
+    weights = arrays["coef"] / arrays["scaler_scale"]
+    bias = float(arrays["intercept"][0] - np.dot(weights, arrays["scaler_mean"]))
+    if np.max(np.abs(weights)) > MAX_MODEL_VALUE or not abs(bias) <= MAX_MODEL_VALUE:
+        return f"coef / scaler_scale reaches {np.max(np.abs(weights)):.3g} and the bias {bias:.3g}; at most {MAX_MODEL_VALUE:g} in magnitude"
+    return ""
 
 
 def _digest(arrays: dict[str, np.ndarray], header: dict) -> str:
@@ -271,8 +292,7 @@ class VehicleClassifier:
             file and the problem.
         """
         path = Path(path)
-        if not path.is_file():
-            raise ModelError(f"{path}: model file not found")
+        input_file(path, "model file", ModelError)
         data = _read_npz(path)
         meta_arr = data["meta"]
         if meta_arr.dtype != np.uint8 or meta_arr.ndim != 1:
@@ -288,7 +308,9 @@ class VehicleClassifier:
         version = meta.get("format_version")
         if version not in (1, MODEL_FORMAT_VERSION):
             raise ModelError(f"{path}: model format version {version!r} is not supported (expected 1 or {MODEL_FORMAT_VERSION})")
-        lib = str(meta.get("library_version", "?"))
+        lib = meta.get("library_version", "?")
+        if not isinstance(lib, str) or len(lib) > 64:
+            raise ModelError(f"{path}: library_version in the header must be a version string")
         if _version_tuple(lib) > _version_tuple(__version__):
             raise ModelError(f"{path}: trained by vehicle-detection {lib}, newer than this {__version__}; upgrade the library")
         if meta.get("feature_format") != FEATURE_FORMAT:
@@ -319,6 +341,9 @@ class VehicleClassifier:
             arrays.update(box_coef=regressor.coef, box_intercept=regressor.intercept)
         if np.any(arrays["scaler_scale"] <= 0):
             raise ModelError(f"{path}: scaler_scale must be positive")
+        problem = _implausible_weights(arrays)
+        if problem:
+            raise ModelError(f"{path}: {problem}")
         if meta.get("sha256") != _digest(arrays, meta):
             raise ModelError(f"{path}: contents do not match the checksum in the header (file altered or damaged)")
         metrics = meta.get("metrics") or {}
@@ -344,6 +369,9 @@ def _box_regressor(path: Path, data: dict[str, np.ndarray], n: int) -> BoxRegres
     coef, intercept = data["box_coef"], data["box_intercept"]
     if coef.dtype != np.float64 or coef.shape != (4, n) or intercept.dtype != np.float64 or intercept.shape != (4,):
         raise ModelError(f"{path}: box refinement arrays are {coef.dtype} {coef.shape} and {intercept.dtype} {intercept.shape}, expected float64 (4, {n}) and (4,)")
+    problem = _implausible_weights({"box_coef": coef, "box_intercept": intercept})
+    if problem:
+        raise ModelError(f"{path}: {problem}")
     try:
         return BoxRegressor(coef, intercept)
     except ValueError as exc:

@@ -738,7 +738,9 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool, camera=No
     from itertools import islice
 
     from .detections import Detections
-    from .images import list_images, read_image
+    from .evaluate import check_boxes_inside
+    from .images import list_images
+    from .mining import labelled_frames
     from .pipeline import process_video
     from .video import probe_video, read_frames
 
@@ -750,10 +752,12 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool, camera=No
         for i, lab in labels.frames.items():
             if lab.file is not None and files[i].name != lab.file:
                 raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {source} is {files[i].name}")
-        if camera is None:
-            return Detections.concatenate(detector.detect_image(read_image(files[i])).replace(frame=i) for i in labels.frames), None
-        found = Detections.concatenate(detector.detect_image(camera.undistort(read_image(files[i]))).replace(frame=i) for i in labels.frames)
+        if camera is None:  # labelled_frames: the images, once their labels are found inside them
+            return Detections.concatenate(detector.detect_image(im).replace(frame=i) for i, im, _ in labelled_frames(labels, source)), None
+        found = Detections.concatenate(detector.detect_image(camera.undistort(im)).replace(frame=i) for i, im, _ in labelled_frames(labels, source))
         return found.replace(xyxy=camera.boxes_to_original(found.xyxy)), None
+    info = probe_video(source)
+    check_boxes_inside(labels, info.width, info.height, source=source)  # boxes beyond the frame: other labels
     # Labels beyond the end of the video would silently count as missed cars: check first, by
     # decoding (the container's frame count is only an estimate for some formats).
     with closing(read_frames(source)) as frames:

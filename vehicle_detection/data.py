@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._files import input_file
 from .errors import InputError
 from .images import decode_image
 
@@ -243,13 +244,18 @@ def _list_extra(folder: Path) -> list[tuple[str, Path]]:
     files and folders (such as an unfinished ``.NAME.XXXX.partial``) are skipped.
     """
     if not folder.is_dir():
+        if folder.exists() or folder.is_symlink():
+            raise InputError(f"{folder}: not a folder; --extra-negatives takes folders of 64x64 PNG negatives")
         raise InputError(f"{folder}: extra negatives folder not found")
     root = folder / "non-vehicles" if (folder / "non-vehicles").is_dir() else folder
     out = []
     for p in root.rglob("*"):
         rel = p.relative_to(root)
-        if p.suffix.lower() != ".png" or not p.is_file() or any(part.startswith(".") for part in rel.parts):
+        if p.suffix.lower() != ".png" or any(part.startswith(".") for part in rel.parts) or (p.is_dir() and not p.is_symlink()):
             continue
+        if not p.exists():
+            raise InputError(f"{p}: a symlink to nothing in an extra negatives folder; remove it")
+        input_file(p, "PNG image")  # a device (/dev/zero), a FIFO or a folder named .png
         if "vehicles" in rel.parts[:-1]:
             raise InputError(f"{p}: an extra negatives folder may not hold a vehicles/ folder; only negatives are added")
         sub = rel.parent.as_posix()
@@ -258,6 +264,13 @@ def _list_extra(folder: Path) -> list[tuple[str, Path]]:
         out.append((source, p))
     out.sort(key=lambda e: (e[0], _file_number(e[1].name), e[1].name))
     return out
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:  # unreadable (permissions), or gone since it was listed
+        raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
 def load_dataset(
@@ -328,7 +341,7 @@ def _load(root: Path, stack: contextlib.ExitStack, drop_duplicates: bool, track_
                 raise InputError(f"{folder}: extra negatives folder {source} has the name of a folder of the training archives; rename it")
             if extra_sources.setdefault(source, folder) != folder:
                 raise InputError(f"{folder}: extra negatives folder {source} is also in {extra_sources[source]}; rename one")
-            entries.append(("non-vehicles", f"{source}/{path.name}", lambda name, path=path: path.read_bytes(), path))
+            entries.append(("non-vehicles", f"{source}/{path.name}", lambda name, path=path: _read_bytes(path), path))
 
     def load(entry):
         cls, name, read, shown = entry

@@ -51,6 +51,7 @@ __all__ = [
     "FrameMatch",
     "Scores",
     "load_annotations",
+    "check_boxes_inside",
     "match_frame",
     "evaluate_detections",
     "average_precision",
@@ -280,8 +281,8 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
     if "frames" not in doc:
         raise InputError(f"{path}: no 'frames' key; expected {{\"frames\": {{\"<frame index>\": ...}}}}")
     video = doc.get("video")
-    if video is not None and not isinstance(video, str):
-        raise InputError(f"{path}: 'video' must be a string or null")
+    if video is not None and (not isinstance(video, str) or not video.strip() or "\0" in video):
+        raise InputError(f"{path}: 'video' must be the path of a video or image folder (relative to this file), or null")
     camera = doc.get("camera")
     if camera is not None and (not isinstance(camera, str) or not _CAMERA_NAME.fullmatch(camera)):
         raise InputError(
@@ -303,6 +304,44 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
             raise InputError(f"{path}: frame key {key} is beyond the largest frame index {MAX_COORD}")
         frames[int(key)] = _parse_frame(key, value, path)
     return Annotations(video=video, frames=dict(sorted(frames.items())), path=path, camera=camera)
+
+
+def check_boxes_inside(annotations: Annotations, width: int, height: int, frames: Iterable[int] | None = None, source=None) -> None:
+    """Refuse labelled boxes that reach beyond the frames they label.
+
+    A box beyond the frame cannot be matched (detections are clipped to the frame), and cutting
+    training patches at it would read outside the picture: such labels are of another video or
+    another frame size.
+
+    Parameters
+    ----------
+    annotations : Annotations
+    width, height : int
+        The frame size of the labelled video or image.
+    frames : iterable of int, optional
+        Check only these labelled frames (default: every one).
+    source : path-like, optional
+        The video or image the frames are of, for the message.
+
+    Raises
+    ------
+    InputError
+        Naming the file, the frame and the box, e.g. ``frames["50"].cars[1]``.
+    """
+    for index in annotations.frames if frames is None else frames:
+        labels = annotations.frames.get(index)
+        if labels is None:
+            continue
+        for name in _BOX_FIELDS:
+            boxes = getattr(labels, name)
+            bad = np.flatnonzero((boxes[:, 2] > width) | (boxes[:, 3] > height))
+            if bad.size:
+                k = int(bad[0])
+                of = f" of {source}" if source is not None else ""
+                raise InputError(
+                    f"{annotations.path}: frames[\"{index}\"].{name}[{k}] = {boxes[k].tolist()} reaches beyond the "
+                    f"{width}x{height} frame{of} (x2 <= {width} and y2 <= {height}); labels of another video?"
+                )
 
 
 # --------------------------------------------------------------------------------------------

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from ._files import atomic_output
+from ._files import atomic_output, input_file
 from .errors import InputError, OutputError
 
 __all__ = [
@@ -284,6 +284,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: is a folder, not an image file")
+    if path.exists():  # a device (/dev/zero) or a FIFO would be read forever, or block
+        input_file(path, "image file")
     try:
         data = path.read_bytes()
     except FileNotFoundError:

@@ -31,6 +31,7 @@ The steps, all pure functions except the small stateful :class:`LaneTracker` and
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -61,6 +62,29 @@ LANE_WIDTH_M = 3.7
 DASH_LENGTH_M = 3.0
 #: A US lane dash (3 m, 10 ft) and the gap to the next (9 m, 30 ft).
 DASH_PERIOD_M = 12.0
+#: Smallest side of a bird's-eye view, pixels.
+MIN_WARPED_SIDE = 16
+#: Plausible extent of a bird's-eye view across and along the road, metres.
+VIEW_SPAN_M = (1.0, 1000.0)
+#: Smallest area of the lane quadrilateral, as a share of its frame.
+MIN_QUAD_AREA = 0.01
+
+
+def _quad_problem(name: str, quad: np.ndarray, w: float, h: float, slack_x: float) -> str:
+    """Why ``quad`` (bottom-left, top-left, top-right, bottom-right) is no lane region of a ``w x h`` frame."""
+    q = np.asarray(quad, dtype=np.float64)
+    if q[:, 0].min() < -slack_x or q[:, 0].max() > w + slack_x or q[:, 1].min() < 0 or q[:, 1].max() > h:
+        where = f"inside the {w:g}x{h:g} frame" + (f" (or at most {slack_x:g} px beyond its sides)" if slack_x else "")
+        return f"{name} = {q.tolist()} must lie {where}"
+    (blx, bly), (tlx, tly), (trx, try_), (brx, bry) = q
+    if not (bly > tly and bry > try_ and brx > blx and trx > tlx):
+        return f"{name} = {q.tolist()} must be bottom-left, top-left, top-right, bottom-right (image y grows downward)"
+    edges = np.roll(q, -1, axis=0) - q
+    cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+    area = 0.5 * abs(float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])))
+    if not (np.all(cross > 0) or np.all(cross < 0)) or area < MIN_QUAD_AREA * w * h:
+        return f"{name} = {q.tolist()} must be a convex quadrilateral covering at least {MIN_QUAD_AREA:.0%} of the frame"
+    return ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,6 +100,20 @@ class BirdsEye:
         ``(width, height)`` of the camera images and of the warped view.
     xm_per_px, ym_per_px : float
         Metres per warped pixel across and along the road.
+
+    Raises
+    ------
+    ValueError
+        Unless the transform is plausible; the message starts with the field at fault:
+
+        - ``src`` is a convex quadrilateral in that corner order covering at least
+          :data:`MIN_QUAD_AREA` of the camera frame and lying inside it (the bottom corners may
+          lie up to half a frame width beyond its sides), no wider at its top than at its bottom;
+          ``dst`` likewise inside the warped view;
+        - the transform is invertible, and ``src`` and the bottom centre of the frame lie on the
+          ground side of its horizon (so the lane region maps onto ``dst``, inside the view);
+        - ``warped_size`` is at least :data:`MIN_WARPED_SIDE` pixels and at most 4 times the
+          camera image each way, and the view spans :data:`VIEW_SPAN_M` metres across and along.
     """
 
     src: np.ndarray
@@ -88,13 +126,58 @@ class BirdsEye:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         for name in ("src", "dst"):
-            a = np.array(getattr(self, name), dtype=np.float32).reshape(4, 2)
+            a = np.array(getattr(self, name), dtype=np.float64)
+            if a.shape != (4, 2) or not np.all(np.isfinite(a)):
+                raise ValueError(f"{name} must be 4 points (x, y) of finite numbers")
+            a = a.astype(np.float32)
             a.setflags(write=False)
             set_(self, name, a)
         set_(self, "image_size", tuple(int(v) for v in self.image_size))
         set_(self, "warped_size", tuple(int(v) for v in self.warped_size))
-        if not (self.xm_per_px > 0 and self.ym_per_px > 0):
-            raise ValueError("metres per pixel must be > 0")
+        set_(self, "xm_per_px", float(self.xm_per_px))
+        set_(self, "ym_per_px", float(self.ym_per_px))
+        problem = self._implausible()
+        if problem:
+            raise ValueError(problem)
+
+    def _implausible(self) -> str:
+        """Why this cannot be a camera's view of the road ("" if it can); starts with the field at fault."""
+        import cv2
+
+        if len(self.image_size) != 2 or min(self.image_size) < 1:
+            return f"image_size must be (width, height) of at least 1 pixel; got {self.image_size}"
+        if len(self.warped_size) != 2:
+            return f"warped_size must be (width, height); got {self.warped_size}"
+        (w, h), (ww, wh) = self.image_size, self.warped_size
+        if not (MIN_WARPED_SIDE <= ww <= 4 * w and MIN_WARPED_SIDE <= wh <= 4 * h):
+            return (
+                f"warped_size {'x'.join(map(str, self.warped_size))} must be at least {MIN_WARPED_SIDE} pixels and at most "
+                f"4 times the camera image ({4 * w}x{4 * h}) each way"
+            )
+        for name, per_px, n in (("xm_per_px", self.xm_per_px, ww), ("ym_per_px", self.ym_per_px, wh)):
+            lo, hi = VIEW_SPAN_M
+            if not (math.isfinite(per_px) and per_px > 0 and lo <= per_px * n <= hi):
+                return f"{name} = {per_px:.6g} m makes the warped view {per_px * n:.6g} m {'across' if name[0] == 'x' else 'long'} ({lo:g} to {hi:g} m expected)"
+        # The lane region: a convex quadrilateral, in the documented corner order, inside the frame
+        # (the bottom corners may lie beyond the sides: lane lines can leave the picture there) ...
+        problem = _quad_problem("src", self.src, w, h, w / 2) or _quad_problem("dst", self.dst, ww, wh, 0.0)
+        if problem:
+            return problem
+        (blx, _), (tlx, _), (trx, _), (brx, _) = self.src.astype(np.float64)
+        if trx - tlx > brx - blx:
+            return f"src = {self.src.tolist()}: the lane must narrow towards its top (its lines meet at the horizon above it)"
+        # ... mapped by an invertible transform onto its place in the warped view, on the ground
+        # side of the horizon, as is the bottom centre of the frame (the camera's own position).
+        try:
+            M, Minv = self.M, self.Minv  # cached for the object's use
+        except cv2.error:
+            return "src: the transform from src to dst is not invertible"
+        if not (np.all(np.isfinite(M)) and np.all(np.isfinite(Minv)) and np.linalg.cond(M) < 1e12):
+            return "src: the transform from src to dst is not invertible"
+        ground = self.to_warped(np.r_[self.src, [[w / 2, h]]])
+        if not np.all(np.isfinite(ground)) or np.abs(ground[:4] - self.dst).max() > 0.5:
+            return "src: the lane region and the bottom of the frame are not all on the ground side of the transform's horizon"
+        return ""
 
     @cached_property
     def M(self) -> np.ndarray:
@@ -263,7 +346,7 @@ def birds_eye_from_straight(
     top = int(round(top_row * h))
     lefts, rights = zip(*(_straight_lines(f, top) for f in frames))
     left, right = np.mean(lefts, axis=0), np.mean(rights, axis=0)
-    provisional = _view_from_lines(left, right, (w, h), top, (ww, wh), margin)
+    provisional = _straight_view(lambda: _view_from_lines(left, right, (w, h), top, (ww, wh), margin))
     xl, xr = provisional.dst[0, 0], provisional.dst[3, 0]
     periods = []
     for f in frames:
@@ -274,7 +357,7 @@ def birds_eye_from_straight(
                 periods.append(d)
     if not periods:
         raise InputError("no lane dashes found in the straight-road frames; cannot derive metres per pixel along the road")
-    return provisional.replace(ym_per_px=DASH_PERIOD_M / float(np.median(periods)))
+    return _straight_view(lambda: provisional.replace(ym_per_px=DASH_PERIOD_M / float(np.median(periods))))
 
 
 def _view_from_lines(left, right, image_size, top: float, warped_size, margin: float, lane_width_m: float = LANE_WIDTH_M) -> BirdsEye:
@@ -292,6 +375,14 @@ def _view_from_lines(left, right, image_size, top: float, warped_size, margin: f
     xl, xr = margin * ww, (1 - margin) * ww
     dst = np.array([[xl, wh], [xl, 0], [xr, 0], [xr, wh]], float)
     return BirdsEye(src, dst, (w, h), (ww, wh), lane_width_m / (xr - xl), 1.0)
+
+
+def _straight_view(make) -> BirdsEye:
+    """``make()``, a view from straight-road frames: an implausible one is the frames' fault."""
+    try:
+        return make()
+    except ValueError as exc:
+        raise InputError(f"the straight-road frames give an implausible bird's-eye view: {exc}") from None
 
 
 # --- lane pixels and fits ----------------------------------------------------------------------

@@ -234,34 +234,65 @@ def negative_mask(
 
 
 def _frames_of(path: Path, labels: Annotations | None = None) -> Iterator[tuple[int, Callable[[], np.ndarray]]]:
-    """``(index, load)`` per frame of a video or image folder; ``load()`` gives the RGB frame."""
+    """``(index, load)`` per frame of a video or image folder; ``load()`` gives the RGB frame.
+
+    With ``labels``, they must fit the input: no labelled frame beyond its last frame (checked
+    up front for a folder, at the end for a video), and no labelled box beyond the frame (checked
+    up front for a video, as each labelled image is loaded for a folder).
+    """
+    from .evaluate import check_boxes_inside
     from .images import list_images, read_image
-    from .video import read_frames
+    from .video import probe_video, read_frames
 
     if path.is_dir():
         files = list_images(path)
         for i, lab in (labels.frames.items() if labels is not None else ()):
-            if lab.file is not None and (i >= len(files) or files[i].name != lab.file):
-                found = files[i].name if i < len(files) else "missing"
-                raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {path} is {found}")
+            if i >= len(files):
+                raise InputError(f"{labels.path}: labels image {i}, but {path} has only {len(files)} images")
+            if lab.file is not None and files[i].name != lab.file:
+                raise InputError(f"{labels.path}: frame {i} is labelled as {lab.file}, but image {i} of {path} is {files[i].name}")
+
+        def load(i: int, f: Path) -> np.ndarray:
+            image = read_image(f)
+            if labels is not None:
+                check_boxes_inside(labels, image.shape[1], image.shape[0], [i], f)
+            return image
+
         for i, f in enumerate(files):
-            yield i, (lambda f=f: read_image(f))
+            yield i, (lambda i=i, f=f: load(i, f))
         return
     if not path.exists():
         raise InputError(f"{path}: no such video or folder")
+    if labels is not None:
+        info = probe_video(path)
+        check_boxes_inside(labels, info.width, info.height, source=path)
+    n = 0
     with closing(read_frames(path)) as frames:
         for i, frame in enumerate(frames):
+            n = i + 1
             yield i, (lambda frame=frame: frame)
+    beyond = [i for i in (labels.frames if labels is not None else ()) if i >= n]
+    if beyond:
+        raise InputError(
+            f"{labels.path}: labels frame(s) {', '.join(map(str, beyond))}, but {path} has only {n} decoded frames; wrong video or labels?"
+        )
 
 
-def labelled_frames(annotations: Annotations) -> Iterator[tuple[int, np.ndarray, FrameLabels]]:
-    """``(index, frame, labels)`` of every labelled frame of an annotation file's video or folder."""
-    source = annotations.source
+def labelled_frames(annotations: Annotations, source: str | os.PathLike | None = None) -> Iterator[tuple[int, np.ndarray, FrameLabels]]:
+    """``(index, frame, labels)`` of every labelled frame of an annotation file's video or folder.
+
+    ``source`` replaces the video or folder the file names. Raises :class:`InputError` if the
+    labels do not fit it (see :func:`_frames_of`).
+    """
+    source = annotations.source if source is None else Path(source)
     if source is None:
         raise InputError(f"{annotations.path}: the labels name no video")
+    last = max(annotations.frames, default=-1)
     for index, load in _frames_of(source, annotations):
         if index in annotations.frames:
             yield index, load(), annotations.frames[index]
+        if index >= last:
+            return
 
 
 def vehicle_patches(
@@ -295,6 +326,11 @@ def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 12, b
     blocks of ``block`` frames, so a grouped split keeps neighbouring frames on one side.
     """
     rng = np.random.default_rng(random_state)
+    for ann in annotations:
+        if ann.source is None:
+            raise InputError(f"{ann.path}: the labels name no video or image folder (key 'video')")
+        if not ann.n_cars:
+            raise InputError(f"{ann.path}: no labelled cars; the labels add vehicles (and the box refinement) from the cars of labelled frames")
     parts = []
     for ann in annotations:
         name = _input_name(ann.source)

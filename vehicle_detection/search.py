@@ -86,8 +86,8 @@ class SearchScale:
     aspect: float = 1.0
 
     def __post_init__(self):
-        if not self.scale > 0:
-            raise ValueError(f"scale must be positive, got {self.scale}")
+        if not 0.25 <= self.scale <= 32:
+            raise ValueError(f"scale must be within 0.25..32 (windows of 16 to 2048 pixels), got {self.scale}")
         if not 0.25 <= self.aspect <= 4:
             raise ValueError(f"aspect must be within 0.25..4, got {self.aspect}")
         if self.y_stop <= self.y_start or self.y_start < 0 or self.x_start < 0:
@@ -172,8 +172,10 @@ class SearchPlan:
             raise ValueError(f"track_margin must be in [0, 10], got {self.track_margin}")
         if not self.scales:
             raise ValueError("a search plan needs at least one scale")
-        if self.reference_height < 64:
-            raise ValueError("reference_height must be at least 64")
+        if not 64 <= self.reference_height <= 1440:
+            raise ValueError(f"reference_height must be 64 to 1440 pixels, got {self.reference_height}")
+        if not np.isfinite(self.threshold):
+            raise ValueError(f"threshold must be a finite number, got {self.threshold}")
         if not 0.0 <= self.overhang < 1.0:
             raise ValueError(f"overhang must be in [0, 1), got {self.overhang}")
         for name in ("horizon", "reference_horizon"):

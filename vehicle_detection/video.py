@@ -71,7 +71,7 @@ import av
 import numpy as np
 from av.video.reformatter import VideoReformatter
 
-from ._files import atomic_output, check_output_path
+from ._files import atomic_output, check_output_path, input_file
 from .errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS"]
@@ -319,6 +319,7 @@ def _probe(path: str | os.PathLike) -> tuple[Path, VideoInfo, _Layout]:
         raise InputError(f"{path}: cannot read file: {exc.strerror or exc}") from None
     if path.is_dir():
         raise InputError(f"{path}: is a folder, not a video file")
+    input_file(path, "video file")  # a device or a FIFO: refused before it is opened
     if st.st_size == 0:
         raise InputError(f"{path}: file is empty")
 
