@@ -111,27 +111,27 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; nothing is imported at run time
-    from .camera import Camera, calibrate
-    from .lanes import BirdsEye, DistanceTracker, Lane, LaneTracker, birds_eye_from_straight, draw_lane, find_lane_pixels, fit_lanes, lane_binary
+    from .road.camera import Camera, calibrate
+    from .road.lanes import BirdsEye, DistanceTracker, Lane, LaneTracker, birds_eye_from_straight, draw_lane, find_lane_pixels, fit_lanes, lane_binary
     from .classifier import VehicleClassifier, load_default_model, load_model, split_indices, sweep, sweep_configs, train
     from .config import DetectorConfig
-    from .data import find_duplicates, load_dataset
+    from .training.data import find_duplicates, load_dataset
     from .detections import Detections
     from .detector import Detector
-    from .drawing import draw_boxes, draw_detections
-    from .evaluate import Annotations, FrameLabels, average_precision, evaluate_detections, evaluation_report, load_annotations, match_frame
+    from .viz.drawing import draw_boxes, draw_detections
+    from .metrics.detection import Annotations, FrameLabels, average_precision, evaluate_detections, evaluation_report, load_annotations, match_frame
     from .features import FeatureConfig, extract_features
     from .geometry import box_iou, match_boxes
-    from .images import list_images, read_image, write_image
-    from .mining import MiningSource, mine_negatives, write_negatives
+    from .io.images import list_images, read_image, write_image
+    from .training.mining import MiningSource, mine_negatives, write_negatives
     from .search import SearchPlan, SearchScale
     from .horizon import estimate_horizon, vanishing_row
     from .overlays import active_area, find_overlays, static_mask
     from .tracker import Tracker, TrackerConfig
-    from .tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
-    from .tracking_metrics import tracking_scores
-    from .pipeline import process_video
-    from .batch import InputResult, detect_many
-    from .formats import read_parquet, write_coco, write_mot, write_parquet
-    from .live import MoviepyAdapter
-    from .video import VideoWriter, probe_video, read_frames
+    from .io.tables import read_boxes_csv, write_boxes_csv, write_lanes_csv
+    from .metrics.tracking import tracking_scores
+    from .pipeline.video import process_video
+    from .pipeline.batch import InputResult, detect_many
+    from .io.formats import read_parquet, write_coco, write_mot, write_parquet
+    from .pipeline.live import MoviepyAdapter
+    from .io.video import VideoWriter, probe_video, read_frames

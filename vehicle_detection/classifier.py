@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from ._files import atomic_output
+from .io._files import atomic_output
 from .config import DetectorConfig
-from .data import Dataset
+from .training.data import Dataset
 from .errors import ModelError
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
 from .refine import BoxRegressor
@@ -464,7 +464,7 @@ def train(
     """
     from joblib import Parallel, delayed
 
-    from .data import check_split_sizes
+    from .training.data import check_split_sizes
     from .errors import InputError
 
     labels = np.asarray(dataset.labels)
@@ -516,7 +516,7 @@ def with_box_refinement(model: VehicleClassifier, annotations, *, alpha: float =
     alpha : float
         Ridge penalty.
     """
-    from .mining import labelled_frames
+    from .training.mining import labelled_frames
     from .refine import fit_box_regressor
 
     samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
@@ -591,7 +591,7 @@ def sweep(
     """
     from joblib import Parallel, delayed
 
-    from .data import check_split_sizes
+    from .training.data import check_split_sizes
 
     check_split_sizes(dataset.labels, dataset.groups, test_size=test_size)  # before any work
     rows = Parallel(n_jobs=n_jobs)(

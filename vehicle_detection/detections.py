@@ -266,13 +266,13 @@ class Detections:
 
         See :func:`vehicle_detection.formats.to_supervision`.
         """
-        from .formats import to_supervision
+        from .io.formats import to_supervision
 
         return to_supervision(self)
 
     @classmethod
     def from_supervision(cls, sv_detections, frame: int | None = None) -> Detections:
         """A table from a ``supervision.Detections`` (see :func:`vehicle_detection.formats.from_supervision`)."""
-        from .formats import from_supervision
+        from .io.formats import from_supervision
 
         return from_supervision(sv_detections, frame)

@@ -31,7 +31,7 @@ from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs
-from .images import as_rgb_uint8
+from .io.images import as_rgb_uint8
 from .overlays import Overlays, active_area, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat

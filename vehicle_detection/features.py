@@ -44,7 +44,7 @@ import numpy as np
 
 from ._jit import njit
 from .errors import InputError
-from .images import as_rgb_uint8
+from .io.images import as_rgb_uint8
 
 __all__ = [
     "COLOR_SPACES",

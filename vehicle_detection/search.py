@@ -35,7 +35,7 @@ import numpy as np
 from ._jit import njit
 from .detections import Detections
 from .features import FeatureConfig, _cell_squares, _clipped_block, convert_color, extract_features, hog_input, region_hog
-from .images import as_rgb_uint8, check_frame_shape
+from .io.images import as_rgb_uint8, check_frame_shape
 from .refine import working_frame
 
 if TYPE_CHECKING:

@@ -27,7 +27,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from .errors import InputError, OutputError, VehicleDetectionError
+from ..errors import InputError, OutputError, VehicleDetectionError
 
 __all__ = [
     "atomic_output",

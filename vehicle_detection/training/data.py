@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .images import decode_image
+from ..errors import InputError
+from ..io.images import decode_image
 
 __all__ = [
     "DATA_ENV",

@@ -24,8 +24,8 @@ import traceback
 from contextlib import contextmanager
 from pathlib import Path
 
-from . import __version__
-from .errors import InputError, OutputError, UsageError, VehicleDetectionError
+from .. import __version__
+from ..errors import InputError, OutputError, UsageError, VehicleDetectionError
 
 __all__ = ["main", "build_parser"]
 
@@ -82,7 +82,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
 
 
 def _add_feature_options(p: argparse.ArgumentParser) -> None:
-    from .features import COLOR_SPACES, FeatureConfig
+    from ..features import COLOR_SPACES, FeatureConfig
 
     d = FeatureConfig()
     g = p.add_argument_group("features (defaults: the embedded model's)")
@@ -98,7 +98,7 @@ def _add_feature_options(p: argparse.ArgumentParser) -> None:
 
 
 def _feature_config(args):
-    from .features import FeatureConfig
+    from ..features import FeatureConfig
 
     try:
         channels = tuple(int(c) for c in str(args.hog_channels).split(",") if c.strip())
@@ -118,7 +118,7 @@ def _feature_config(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .video import X264_PRESETS
+    from ..io.video import X264_PRESETS
 
     parser = _Parser(
         prog="vehicle-detection",
@@ -305,8 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_download(args) -> int:
-    from .data import default_data_dir
-    from .download import download_archives
+    from ..training.data import default_data_dir
+    from ..training.download import download_archives
 
     paths = download_archives(default_data_dir(args.data_dir), progress=not args.no_progress)
     for name, path in paths.items():
@@ -337,10 +337,10 @@ def _train_report(model) -> dict:
 
 
 def _cmd_train(args) -> int:
-    from .classifier import DEFAULT_C, train, with_box_refinement
-    from .data import check_split_sizes, default_data_dir, load_dataset
-    from .evaluate import load_annotations
-    from .mining import labelled_dataset
+    from ..classifier import DEFAULT_C, train, with_box_refinement
+    from ..training.data import check_split_sizes, default_data_dir, load_dataset
+    from ..metrics.detection import load_annotations
+    from ..training.mining import labelled_dataset
 
     config = _feature_config(args)
     root = default_data_dir(args.data_dir)
@@ -358,7 +358,7 @@ def _cmd_train(args) -> int:
         model = with_box_refinement(model, labels)
     extra = {}
     if args.extra_negatives:
-        from .data import _list_extra
+        from ..training.data import _list_extra
 
         extra_sources = {source for d in args.extra_negatives for source, _ in _list_extra(Path(d))}
         extra = {"extra_negatives": {k: v for k, v in ds.counts().items() if k in extra_sources}}
@@ -386,8 +386,8 @@ def _cmd_train(args) -> int:
 
 def _check_model_output(model, root: Path, *, overwrite: bool) -> None:
     """The training data are inputs: ``--model`` may not be an archive or lie in a class folder."""
-    from ._files import check_output_path
-    from .data import CLASSES
+    from ..io._files import check_output_path
+    from ..training.data import CLASSES
 
     model = Path(model)
     check_output_path(model, overwrite=overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
@@ -410,8 +410,8 @@ def _csv_ints(text: str, what: str) -> list[int]:
 def _cmd_sweep(args) -> int:
     import numpy as np
 
-    from .classifier import DEFAULT_C, split_indices, sweep, sweep_configs
-    from .data import CLASSES, MIN_IMAGES_PER_CLASS, check_split_sizes, default_data_dir, load_dataset
+    from ..classifier import DEFAULT_C, split_indices, sweep, sweep_configs
+    from ..training.data import CLASSES, MIN_IMAGES_PER_CLASS, check_split_sizes, default_data_dir, load_dataset
 
     try:
         pairs = [tuple(int(v) for v in p.lower().split("x")) for p in args.color_features.split(",") if p.strip()]
@@ -461,8 +461,8 @@ def _cmd_sweep(args) -> int:
 
 
 def _cmd_calibrate(args) -> int:
-    from .camera import calibrate
-    from .images import list_images, read_image
+    from ..road.camera import calibrate
+    from ..io.images import list_images, read_image
 
     try:
         cols, rows = (int(v) for v in args.pattern.lower().split("x"))
@@ -476,13 +476,13 @@ def _cmd_calibrate(args) -> int:
     photos = list_images(folder)
     straight = [Path(p) for p in args.straight]
     if args.out is not None:
-        from ._files import check_output_path
+        from ..io._files import check_output_path
 
         check_output_path(args.out, overwrite=args.overwrite, inputs=[*photos, *straight])
     t = time.perf_counter()
     camera = calibrate(folder, (cols, rows))
     if straight:
-        from .lanes import birds_eye_from_straight
+        from ..road.lanes import birds_eye_from_straight
 
         frames = [read_image(p) for p in straight]
         for p, f in zip(straight, frames):
@@ -523,13 +523,13 @@ def _cmd_calibrate(args) -> int:
 def _load_camera(path):
     if path is None:
         return None
-    from .camera import Camera
+    from ..road.camera import Camera
 
     return Camera.load(path)
 
 
 def _load_detector(model_path, horizon: float | str | None = None, full_search_every: int | None = None):
-    from .detector import Detector
+    from ..detector import Detector
 
     detector = Detector.load(model_path or None, horizon=horizon)
     if full_search_every is None:
@@ -551,7 +551,7 @@ def _is_batch(args) -> bool:
         return True
     import glob
 
-    from .batch import VIDEO_EXTENSIONS
+    from ..pipeline.batch import VIDEO_EXTENSIONS
 
     inp = Path(args.inputs[0])
     if not inp.exists():
@@ -580,7 +580,7 @@ def _detect_range(args) -> tuple[int, int | None] | None:
 
 
 def _cmd_detect_many(args) -> int:
-    from .batch import detect_many
+    from ..pipeline.batch import detect_many
 
     if args.out or args.boxes:
         raise UsageError("--out and --boxes name the outputs of one input; in a batch use --out-dir (default names)")
@@ -629,13 +629,13 @@ def _cmd_detect(args) -> int:
 
 
 def _cmd_detect_one(args) -> int:
-    from ._files import check_output_path, output_batch
-    from .detections import Detections
-    from .drawing import draw_detections
-    from .images import check_image_output, list_images, read_image, write_image
-    from .batch import default_outputs, input_kind, unknown_type
-    from .tables import write_boxes_csv
-    from .pipeline import process_video
+    from ..io._files import check_output_path, output_batch
+    from ..detections import Detections
+    from ..viz.drawing import draw_detections
+    from ..io.images import check_image_output, list_images, read_image, write_image
+    from ..pipeline.batch import default_outputs, input_kind, unknown_type
+    from ..io.tables import write_boxes_csv
+    from ..pipeline.video import process_video
 
     inp = Path(args.input)
     if not inp.exists():
@@ -709,7 +709,7 @@ def _cmd_detect_one(args) -> int:
                 det = detector.detect_image(image).replace(frame=i)
                 shown = image
                 if camera is not None and camera.birds_eye is not None:
-                    from .lanes import DistanceTracker, LaneTracker, draw_lane, lane_row
+                    from ..road.lanes import DistanceTracker, LaneTracker, draw_lane, lane_row
 
                     det = DistanceTracker(camera.birds_eye, 25.0).update(det)
                     if lanes:
@@ -723,7 +723,7 @@ def _cmd_detect_one(args) -> int:
             write_boxes_csv(boxes, Detections.concatenate(found), overwrite=args.overwrite, inputs=inputs, files=names)
             report = [f"boxes: {boxes}"]
             if lanes_csv is not None:
-                from .tables import write_lanes_csv
+                from ..io.tables import write_lanes_csv
 
                 write_lanes_csv(lanes_csv, lane_rows, overwrite=args.overwrite, inputs=inputs)
                 report.append(f"lanes: {lanes_csv}")
@@ -737,10 +737,10 @@ def _detect_for_labels(labels, source: Path, detector, progress: bool, camera=No
     from contextlib import closing
     from itertools import islice
 
-    from .detections import Detections
-    from .images import list_images, read_image
-    from .pipeline import process_video
-    from .video import probe_video, read_frames
+    from ..detections import Detections
+    from ..io.images import list_images, read_image
+    from ..pipeline.video import process_video
+    from ..io.video import probe_video, read_frames
 
     last = max(labels.frames) + 1
     if source.is_dir():
@@ -807,9 +807,9 @@ def _json_scores(pooled: dict) -> dict:
 
 
 def _cmd_evaluate(args) -> int:
-    from .evaluate import evaluation_report, load_annotations, pool_by_camera, pool_reports
-    from .reporting import ReportSource, check_report_dir, labels_camera
-    from .tables import read_boxes_csv
+    from ..metrics.detection import evaluation_report, load_annotations, pool_by_camera, pool_reports
+    from ..metrics.reporting import ReportSource, check_report_dir, labels_camera
+    from ..io.tables import read_boxes_csv
 
     all_labels = [load_annotations(p) for p in args.labels]
     for labels in all_labels:
@@ -859,7 +859,7 @@ def _print_pooled(by_camera: dict, pooled: dict, n_files: int) -> None:
 
 
 def _write_evaluate_report(args, items, by_camera: dict, pooled: dict, sources: dict) -> None:
-    from .reporting import write_evaluation_report
+    from ..metrics.reporting import write_evaluation_report
 
     inputs = [*args.labels, *(s for s in sources.values() if s is not None), *filter(None, [args.boxes, args.model, args.camera])]
     written = write_evaluation_report(args.report, items, by_camera, pooled, overwrite=args.overwrite, inputs=inputs)
@@ -911,8 +911,8 @@ def _regions(texts: list[str]):
 
 
 def _cmd_mine_negatives(args) -> int:
-    from .evaluate import load_annotations
-    from .mining import MiningSource, mine_negatives, write_negatives
+    from ..metrics.detection import load_annotations
+    from ..training.mining import MiningSource, mine_negatives, write_negatives
 
     if not args.inputs and not args.labels:
         raise UsageError("give the footage to mine: INPUT (with --negative-region) and/or --labels L.json")
@@ -942,7 +942,7 @@ def _cmd_mine_negatives(args) -> int:
         seen.add(inp.resolve())
         sources.append(MiningSource(inp))
     inputs = [s.path for s in sources] + [Path(p) for p in args.labels] + ([Path(args.model)] if args.model else [])
-    from .mining import _refuse_inputs
+    from ..training.mining import _refuse_inputs
 
     dest = Path(args.out) / "non-vehicles" / args.name
     _refuse_inputs(dest, inputs)
@@ -1056,7 +1056,7 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from ._files import interrupt_on_signals
+    from ..io._files import interrupt_on_signals
 
     # With --debug the traceback comes first, then the same one-line message and exit code.
     # SIGTERM (timeout, docker stop, systemd) and SIGHUP (a closed terminal) stop a run like

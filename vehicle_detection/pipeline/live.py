@@ -54,7 +54,7 @@ class MoviepyAdapter:
     """
 
     def __init__(self, detector=None, *, draw: bool = True) -> None:
-        from .detector import Detector
+        from ..detector import Detector
 
         self.detector = detector if detector is not None else Detector()
         self.draw = draw
@@ -71,7 +71,7 @@ class MoviepyAdapter:
 
     @property
     def detections(self):
-        from .detections import Detections
+        from ..detections import Detections
 
         return Detections.concatenate(self._found) if self._found else Detections.empty(tracked=True)
 
@@ -80,7 +80,7 @@ class MoviepyAdapter:
         return len(self._found)
 
     def _process(self, frame: np.ndarray) -> np.ndarray:
-        from .drawing import draw_detections
+        from ..viz.drawing import draw_detections
 
         found = self.detector.step(frame, self.tracker)
         self._found.append(found)

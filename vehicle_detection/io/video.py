@@ -72,7 +72,7 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from ._files import atomic_output, check_output_path
-from .errors import InputError, OutputError
+from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS"]
 

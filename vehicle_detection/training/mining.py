@@ -48,12 +48,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import PARTIAL_SUFFIX
+from ..io._files import PARTIAL_SUFFIX
 from .data import MINED_NAME, Dataset
-from .detections import Detections
-from .errors import InputError, OutputError
-from .evaluate import Annotations, FrameLabels
-from .geometry import box_area, box_intersection, box_iou, match_boxes
+from ..detections import Detections
+from ..errors import InputError, OutputError
+from ..metrics.detection import Annotations, FrameLabels
+from ..geometry import box_area, box_intersection, box_iou, match_boxes
 
 __all__ = [
     "labelled_frames",
@@ -235,8 +235,8 @@ def negative_mask(
 
 def _frames_of(path: Path, labels: Annotations | None = None) -> Iterator[tuple[int, Callable[[], np.ndarray]]]:
     """``(index, load)`` per frame of a video or image folder; ``load()`` gives the RGB frame."""
-    from .images import list_images, read_image
-    from .video import read_frames
+    from ..io.images import list_images, read_image
+    from ..io.video import read_frames
 
     if path.is_dir():
         files = list_images(path)
@@ -278,7 +278,7 @@ def vehicle_patches(
     -------
     ndarray of uint8, shape (len(cars) * per_car, side, side, 3)
     """
-    from .refine import crop_windows, jittered_windows, working_frame
+    from ..refine import crop_windows, jittered_windows, working_frame
 
     work, f = working_frame(frame, reference_height)
     cars = np.asarray(cars, np.float64).reshape(-1, 4) * f
@@ -361,8 +361,8 @@ def mine_negatives(
     -------
     MinedNegatives
     """
-    from .detector import Detector
-    from .search import window_patches
+    from ..detector import Detector
+    from ..search import window_patches
 
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise ValueError(f"every must be a whole number >= 1; got {every!r}")

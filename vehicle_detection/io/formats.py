@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from ._files import atomic_output
-from .detections import Detections
-from .errors import InputError
+from ..detections import Detections
+from ..errors import InputError
 
 __all__ = ["write_mot", "write_coco", "write_parquet", "read_parquet", "to_supervision", "from_supervision", "COCO_CATEGORY"]
 

@@ -35,9 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from ._files import atomic_output, read_text
-from .detections import Detections
-from .errors import InputError
-from .geometry import MAX_COORD
+from ..detections import Detections
+from ..errors import InputError
+from ..geometry import MAX_COORD
 
 __all__ = [
     "BOXES_CSV_HEADER",

@@ -40,10 +40,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._files import read_text
-from .detections import Detections
-from .errors import InputError
-from .geometry import MAX_COORD, as_boxes, box_area, box_intersection, box_iou, match_boxes
+from ..io._files import read_text
+from ..detections import Detections
+from ..errors import InputError
+from ..geometry import MAX_COORD, as_boxes, box_area, box_intersection, box_iou, match_boxes
 
 __all__ = [
     "FrameLabels",
@@ -668,7 +668,7 @@ def evaluation_report(detections: Detections, annotations: Annotations, *, fps: 
         positives per frame times frames per minute); and ``tracking`` (MOTA, IDF1, HOTA, ...)
         when the labels carry track ids and the detections are tracked.
     """
-    from .tracking_metrics import tracking_scores
+    from .tracking import tracking_scores
 
     scores = evaluate_detections(detections, annotations, (0.5, 0.7))
     report = {

@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from ._files import atomic_output, output_batch
-from .detections import Detections
-from .errors import InputError, OutputError
-from .evaluate import FAILURE_KINDS, Annotations, Failure, camera_name, find_failures
+from ..io._files import atomic_output, output_batch
+from ..detections import Detections
+from ..errors import InputError, OutputError
+from .detection import FAILURE_KINDS, Annotations, Failure, camera_name, find_failures
 
 __all__ = [
     "ReportSource",
@@ -89,8 +89,8 @@ def frame_size(source: str | os.PathLike, annotations: Annotations | None = None
     annotations : Annotations, optional
         For a folder: the image of its first labelled frame is measured (else the first image).
     """
-    from .images import list_images, read_image
-    from .video import probe_video
+    from ..io.images import list_images, read_image
+    from ..io.video import probe_video
 
     source = Path(source)
     try:
@@ -127,8 +127,8 @@ def labelled_images(source: str | os.PathLike, frames: Collection[int]) -> Itera
     (int, ndarray of uint8, shape (H, W, 3))
         Each wanted frame index that exists and its RGB frame; one frame is alive at a time.
     """
-    from .images import list_images, read_image
-    from .video import read_frames
+    from ..io.images import list_images, read_image
+    from ..io.video import read_frames
 
     wanted = sorted(set(int(f) for f in frames))
     if not wanted:
@@ -210,7 +210,7 @@ def _tile_title(item: ReportSource, frame: int) -> str:
 
 def _tiles_of(item: ReportSource, failures: Sequence[Failure]) -> Iterator[tuple[Failure, np.ndarray]]:
     """Each failure of one labels file with its tile, reading each needed frame once."""
-    from .drawing import failure_tile
+    from ..viz.drawing import failure_tile
 
     by_frame: dict[int, list[Failure]] = {}
     for f in failures:
@@ -253,7 +253,7 @@ def camera_sheet(camera: str, items: Sequence[ReportSource], *, limit: int = MAX
     counts : dict of str to int
         ``miss``, ``false positive`` and ``loose`` (all found), ``shown`` and ``left_out``.
     """
-    from .drawing import failure_sheet
+    from ..viz.drawing import failure_sheet
 
     failures = [(i, f) for i, item in enumerate(items) for f in find_failures(item.detections, item.annotations)]
     chosen = select_failures(failures, limit)
@@ -385,7 +385,7 @@ def _palette(image: np.ndarray, keep: Sequence[tuple[int, int, int]]):
 
 
 def _write_sheet(path: Path, sheet: np.ndarray, *, overwrite: bool, inputs: Iterable[str | os.PathLike]) -> Path:
-    from .drawing import SHEET_COLORS
+    from ..viz.drawing import SHEET_COLORS
 
     small = _palette(sheet, SHEET_COLORS)
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:

@@ -29,7 +29,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import InputError, OutputError, UsageError, VehicleDetectionError
+from ..errors import InputError, OutputError, UsageError, VehicleDetectionError
 
 __all__ = ["InputResult", "detect_many", "expand_inputs", "track_chunk", "join_chunks", "detect_chunked", "FORMATS"]
 
@@ -107,7 +107,7 @@ class _Task:
 
 def unknown_type(path: Path) -> str:
     """The one-line error for an input that is no image, video or folder."""
-    from .images import IMAGE_EXTENSIONS
+    from ..io.images import IMAGE_EXTENSIONS
 
     return (f"{path}: unknown file type {path.suffix!r}; expected an image ({', '.join(IMAGE_EXTENSIONS)}) "
             f"or a video ({', '.join(VIDEO_EXTENSIONS)})")
@@ -115,7 +115,7 @@ def unknown_type(path: Path) -> str:
 
 def input_kind(path: Path) -> str | None:
     """``"folder"``, ``"image"`` or ``"video"`` by what ``path`` is (a folder) or its suffix; None: neither."""
-    from .images import IMAGE_EXTENSIONS
+    from ..io.images import IMAGE_EXTENSIONS
 
     if path.is_dir():
         return "folder"
@@ -134,7 +134,7 @@ def expand_inputs(specs: Iterable[str | os.PathLike]) -> list[tuple[Path, str | 
     image-folder input (as ``detect FOLDER``); a folder with both gives both. ``problem`` is a
     one-line reason the input cannot be processed (missing, unknown type, empty folder), else None.
     """
-    from .images import IMAGE_EXTENSIONS
+    from ..io.images import IMAGE_EXTENSIONS
 
     out: list[tuple[Path, str | None, str | None]] = []
     seen: set[Path] = set()
@@ -212,7 +212,7 @@ _THREADS: int | None = None
 def _detector(model: str | None, horizon: float | str | None):
     key = (model, horizon)
     if key not in _DETECTORS:
-        from .detector import Detector
+        from ..detector import Detector
 
         _DETECTORS[key] = Detector.load(model or None, horizon=horizon)
     return _DETECTORS[key]
@@ -227,7 +227,7 @@ def _set_threads(n: int) -> None:
     import numba
 
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    from . import video
+    from ..io import video
 
     video._DECODER_THREADS = video._ENCODER_THREADS = video._SCALER_THREADS = n
 
@@ -246,7 +246,7 @@ def _complete(task: _Task) -> bool:
 
 def _run_task(task: _Task) -> InputResult:
     """Process one input in this process; errors become the result's ``error`` (interrupts propagate)."""
-    from ._files import interrupt_on_signals
+    from ..io._files import interrupt_on_signals
 
     t = time.perf_counter()
     try:
@@ -279,8 +279,8 @@ def _message(path: Path, exc: BaseException) -> str:
 
 
 def _check_outputs(task: _Task, inputs: list[Path]) -> None:
-    from ._files import check_output_path
-    from .images import check_image_output
+    from ..io._files import check_output_path
+    from ..io.images import check_image_output
 
     if task.kind == "folder" and task.out is not None and task.out.exists() and not task.out.is_dir():
         raise OutputError(f"{task.out}: exists and is not a folder; the annotated images of a folder go into a folder")
@@ -294,12 +294,12 @@ def _check_outputs(task: _Task, inputs: list[Path]) -> None:
 
 def _process(task: _Task) -> tuple[int, int]:
     """Detect in one input and write its outputs together; ``(boxes, frames)``."""
-    from ._files import output_batch
-    from .detections import Detections
+    from ..io._files import output_batch
+    from ..detections import Detections
 
     path = task.path
     if task.kind == "folder":
-        from .images import list_images
+        from ..io.images import list_images
 
         task.files = list_images(path)[task.start : task.end]
     model_inputs = [Path(task.model)] if task.model else []
@@ -311,19 +311,19 @@ def _process(task: _Task) -> tuple[int, int]:
     workers = _THREADS or 2
     with output_batch():
         if task.kind == "video":
-            from .pipeline import process_video
+            from .video import process_video
 
             table = process_video(
                 path, task.out, detector=detector, overwrite=task.overwrite, progress=task.progress, preset=task.preset,
                 crf=task.crf, start=task.start, end=task.end, workers=workers,
             )
-            from .video import probe_video
+            from ..io.video import probe_video
 
             n_frames = _frames_done(probe_video(path).n_frames, task.start, task.end)
             _write_tables(task, table, inputs, names=None, sizes=None)
         else:
-            from .drawing import draw_detections
-            from .images import read_image, write_image
+            from ..viz.drawing import draw_detections
+            from ..io.images import read_image, write_image
 
             files = task.files if task.kind == "folder" else [path]
             found, sizes = [], []
@@ -350,23 +350,23 @@ def _frames_done(n: int | None, start: int, end: int | None) -> int:
 
 
 def _write_tables(task: _Task, table, inputs, *, names, sizes, first: int = 0) -> None:
-    from .tables import write_boxes_csv
+    from ..io.tables import write_boxes_csv
 
     row_names = None if names is None or task.kind != "folder" else names[0]
     for fmt, dest in task.tables.items():
         if fmt == "csv":
             write_boxes_csv(dest, table, overwrite=task.overwrite, inputs=inputs, files=row_names)
         elif fmt == "mot":
-            from .formats import write_mot
+            from ..io.formats import write_mot
 
             write_mot(dest, table, overwrite=task.overwrite, inputs=inputs)
         elif fmt == "parquet":
-            from .formats import write_parquet
+            from ..io.formats import write_parquet
 
             t = table if row_names is None else table.replace(data={"file": row_names})
             write_parquet(dest, [(task.path.name, t)], overwrite=task.overwrite, inputs=inputs)
         elif fmt == "coco":
-            from .formats import write_coco
+            from ..io.formats import write_coco
 
             shifted = table.replace(frame=table.frame - first) if len(table) else table
             write_coco(dest, shifted, names[1], sizes, overwrite=task.overwrite, inputs=inputs)
@@ -386,8 +386,8 @@ def track_chunk(path, start: int, end: int | None, state=None, *, detector=None,
     """
     import itertools
 
-    from .tracker import Tracker, TrackerState
-    from .video import read_frames
+    from ..tracker import Tracker, TrackerState
+    from ..io.video import read_frames
 
     detector = detector or _detector(model, horizon)
     if state is None:
@@ -416,7 +416,7 @@ def join_chunks(steps: Sequence, lag: int):
     """
     import numpy as np
 
-    from .detections import Detections
+    from ..detections import Detections
 
     out = []
     for j, (index, found, _) in enumerate(steps):
@@ -434,7 +434,7 @@ def join_chunks(steps: Sequence, lag: int):
 def detect_chunked(path, chunk_frames: int, *, client=None, model=None, horizon=None, start: int = 0, end: int | None = None):
     """Boxes of a video processed in chunks of ``chunk_frames`` frames, in order (locally, or as a
     chain of dask tasks on ``client``); identical to :func:`~vehicle_detection.pipeline.process_video`."""
-    from .video import probe_video
+    from ..io.video import probe_video
 
     n = probe_video(path).n_frames
     stop = n if end is None else (min(end, n) if n is not None else end)
@@ -468,7 +468,7 @@ def _second(pair):
 
 def _run_chunked(task: _Task, client, chunk_frames: int) -> InputResult:
     """One video as chunks on the cluster; the tables are written here (the client)."""
-    from ._files import output_batch
+    from ..io._files import output_batch
 
     t = time.perf_counter()
     try:
@@ -477,7 +477,7 @@ def _run_chunked(task: _Task, client, chunk_frames: int) -> InputResult:
         if "coco" in task.tables:
             raise InputError(f"{task.path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
         _check_outputs(task, inputs)
-        from .video import probe_video
+        from ..io.video import probe_video
 
         info = probe_video(task.path)
         table = detect_chunked(task.path, chunk_frames, client=client, model=task.model, horizon=task.horizon, start=task.start, end=task.end)
@@ -605,7 +605,7 @@ def detect_many(
         task = tasks[k]
         if skip_existing:
             if task.kind == "folder":
-                from .images import list_images
+                from ..io.images import list_images
 
                 try:
                     task.files = list_images(task.path)[start:end]
@@ -704,8 +704,8 @@ def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results
 
 def _write_combined(dest: Path, results: list[InputResult], *, overwrite: bool) -> None:
     """One Parquet table of every input that has a table, read back from its own output."""
-    from .formats import write_parquet
-    from .tables import read_boxes_csv
+    from ..io.formats import write_parquet
+    from ..io.tables import read_boxes_csv
 
     parts = []
     for r in results:
@@ -716,7 +716,7 @@ def _write_combined(dest: Path, results: list[InputResult], *, overwrite: bool) 
             continue
         src = own[0]
         if src.suffix == ".parquet":
-            from .formats import read_parquet
+            from ..io.formats import read_parquet
 
             parts += list(read_parquet(src).items())
         else:

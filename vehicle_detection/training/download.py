@@ -43,7 +43,7 @@ from types import MappingProxyType
 
 from tqdm.auto import tqdm
 
-from .errors import DownloadError, InputError, OutputError
+from ..errors import DownloadError, InputError, OutputError
 
 __all__ = [
     "Archive",

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from ._files import atomic_output, read_text
-from .errors import InputError
+from ..io._files import atomic_output, read_text
+from ..errors import InputError
 
 __all__ = ["Camera", "calibrate", "find_chessboard", "MAX_CROP"]
 
@@ -308,7 +308,7 @@ def calibrate(
     """
     import cv2
 
-    from .images import list_images, read_image
+    from ..io.images import list_images, read_image
 
     if isinstance(images, (str, os.PathLike)):
         folder = Path(images)

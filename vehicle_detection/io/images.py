@@ -43,7 +43,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from ._files import atomic_output
-from .errors import InputError, OutputError
+from ..errors import InputError, OutputError
 
 __all__ = [
     "IMAGE_EXTENSIONS",

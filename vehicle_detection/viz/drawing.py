@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .detections import Detections
-from .geometry import as_boxes
+from ..detections import Detections
+from ..geometry import as_boxes
 
 __all__ = ["draw_boxes", "draw_detections", "context_region", "tile_view", "add_caption", "failure_tile", "failure_sheet"]
 

@@ -115,7 +115,7 @@ def notebook_paths(notebook_dir: str | os.PathLike | None = None) -> NotebookPat
         The notebook's folder; default the working directory (Jupyter and
         ``tools/regenerate.py`` both run a notebook in its own folder).
     """
-    from .data import DATA_ENV, default_data_dir
+    from ..training.data import DATA_ENV, default_data_dir
 
     nb = Path(notebook_dir) if notebook_dir is not None else Path.cwd()
     repo = nb.resolve().parent
@@ -329,7 +329,7 @@ def color_space_figure(patches: Mapping[str, np.ndarray], color_spaces: Sequence
     ``color_spaces`` defaults to every space :func:`~vehicle_detection.features.convert_color`
     supports.
     """
-    from .features import COLOR_SPACES, convert_color
+    from ..features import COLOR_SPACES, convert_color
 
     color_spaces = COLOR_SPACES if color_spaces is None else color_spaces
     names = list(patches)
@@ -357,7 +357,7 @@ def _channel_names(space: str) -> tuple[str, str, str]:
 
 def hog_figure(patches: Mapping[str, np.ndarray], config):
     """Per patch: the RGB patch, then each channel of ``config.color_space`` above its HOG picture."""
-    from .features import convert_color, hog_image
+    from ..features import convert_color, hog_image
 
     names = list(patches)
     ch_names = _channel_names(config.color_space)
@@ -390,7 +390,7 @@ def hog_figure(patches: Mapping[str, np.ndarray], config):
 
 def hog_parameters_figure(patch: np.ndarray, configs: Sequence, *, title: str | None = None):
     """HOG pictures of one patch's first HOG channel under several configurations, with vector lengths."""
-    from .features import convert_color, hog_image
+    from ..features import convert_color, hog_image
 
     fig, axes = _grid(1, len(configs) + 1, 1.9, 2.25)
     axes = axes[0]
@@ -415,7 +415,7 @@ def hog_parameters_figure(patch: np.ndarray, configs: Sequence, *, title: str | 
 
 def spatial_bins_figure(patches: Mapping[str, np.ndarray], config):
     """Per patch: the RGB patch, its spatial bins shown as a picture, and the bin vector."""
-    from .features import bin_spatial, convert_color
+    from ..features import bin_spatial, convert_color
 
     s = config.spatial_size
     names = list(patches)
@@ -446,7 +446,7 @@ def spatial_bins_figure(patches: Mapping[str, np.ndarray], config):
 
 def histogram_figure(patches: Mapping[str, np.ndarray], config):
     """Colour histograms of each patch, one panel per channel of ``config.color_space``."""
-    from .features import color_histogram, convert_color
+    from ..features import color_histogram, convert_color
 
     b = config.hist_bins
     ch = _channel_names(config.color_space)
@@ -531,7 +531,7 @@ def showcase_configs(model_config) -> list:
     three HOG channels, with and without colour features), signed orientations, and
     ``model_config`` (the embedded model's).
     """
-    from .features import FeatureConfig
+    from ..features import FeatureConfig
 
     classic = dict(signed=False, hog_sqrt=False, spatial_size=16, hist_bins=32)
     return [
@@ -610,7 +610,7 @@ def search_plan_table(frame_shape, plan, config) -> str:
     Columns: scale, window side, rows searched, step, overlap of neighbouring windows, windows
     (:func:`~vehicle_detection.search.plan_windows`), all in the frame's pixels.
     """
-    from .search import plan_windows
+    from ..search import plan_windows
 
     grids = plan_windows(frame_shape, plan, config)
     f = frame_shape[0] / plan.reference_height
@@ -632,7 +632,7 @@ def window_grid_figure(frame: np.ndarray, plan, config, *, ncols: int = 2, rows:
     every ``k``-th window, ``k`` chosen so that drawn windows barely overlap. ``rows`` crops
     the frame shown to ``(top, bottom)`` pixel rows.
     """
-    from .search import plan_windows
+    from ..search import plan_windows
 
     grids = plan_windows(frame.shape, plan, config)
     n = len(plan.scales)
@@ -693,7 +693,7 @@ def detection_stages_figure(
     rows : (int, int), optional
         Crop every panel to these pixel rows (e.g. the road, ``(360, 720)``).
     """
-    from .heatmap import label_heat
+    from ..heatmap import label_heat
 
     cell, thr = detector.config.tracker.cell, detector.config.image_threshold
     plan = detector.config.plan
@@ -746,7 +746,7 @@ def before_after_figure(items: Sequence[tuple], *, before: str = "before", after
     Labels are dashed blue; each column draws its detector's boxes in green with their IoU
     with the best-overlapping label.
     """
-    from .geometry import box_iou
+    from ..geometry import box_iou
 
     x1, y1, x2, y2 = items[0][5]
     fig, axes = _grid(len(items), 2, 4.4, 4.4 * (y2 - y1) / (x2 - x1) + 0.3)
@@ -874,7 +874,7 @@ def labelled_frames_figure(frames: Mapping[int, np.ndarray], annotations, detect
     green when matched at ``iou_threshold``, red when false positives, orange when ignored.
     ``detections`` is a :class:`~vehicle_detection.detections.Detections` with frame indexes.
     """
-    from .evaluate import match_frame
+    from ..metrics.detection import match_frame
 
     idx = [i for i in annotations.frames if i in frames]
     nrows = max(1, -(-len(idx) // ncols))

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .geometry import box_iou
+from ..geometry import box_iou
 
 __all__ = ["TrackingScores", "tracking_scores"]
 

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import check_output_path, output_batch
-from .errors import InputError, OutputError
-from .images import check_frame_shape
-from .video import VideoWriter, probe_video, read_frames
+from ..io._files import check_output_path, output_batch
+from ..errors import InputError, OutputError
+from ..io.images import check_frame_shape
+from ..io.video import VideoWriter, probe_video, read_frames
 
 __all__ = ["process_video"]
 
@@ -134,10 +134,10 @@ def process_video(
     """
     from contextlib import ExitStack
 
-    from .detections import Detections
-    from .detector import Detector
-    from .drawing import draw_detections
-    from .tables import DISTANCE_COLUMNS, write_boxes_csv, write_lanes_csv
+    from ..detections import Detections
+    from ..detector import Detector
+    from ..viz.drawing import draw_detections
+    from ..io.tables import DISTANCE_COLUMNS, write_boxes_csv, write_lanes_csv
 
     path = Path(path)
     detector = detector or Detector()
@@ -175,16 +175,16 @@ def process_video(
         raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
     lane_tracker = distances = None
     if lanes:
-        from .lanes import LaneTracker, draw_lane, lane_row
+        from ..road.lanes import LaneTracker, draw_lane, lane_row
 
         lane_tracker = LaneTracker(birds_eye)
     if birds_eye is not None:
-        from .lanes import DistanceTracker
+        from ..road.lanes import DistanceTracker
 
         distances = DistanceTracker(birds_eye, info.fps or 25.0)
     lane_rows = []
     if tracker is None:
-        from .tracker import Tracker, TrackerState
+        from ..tracker import Tracker, TrackerState
 
         tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))  # frames keep their decoded index
     elif tracker.state.frame_index != start:
