@@ -8,6 +8,7 @@ is one :class:`Detections` whose ``frame`` column says which frame each box belo
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
@@ -18,7 +19,7 @@ from numpy.typing import ArrayLike
 
 from .geometry import MAX_COORD, as_boxes, box_area
 
-__all__ = ["Detections"]
+__all__ = ["Detections", "to_supervision", "from_supervision"]
 
 
 def _readonly(arr: np.ndarray) -> np.ndarray:
@@ -264,15 +265,57 @@ class Detections:
     def to_supervision(self):
         """This table as a ``supervision.Detections`` (needs ``pip install "vehicle-detection[supervision]"``).
 
-        See :func:`vehicle_detection.formats.to_supervision`.
+        See :func:`to_supervision`.
         """
-        from .io.formats import to_supervision
-
         return to_supervision(self)
 
     @classmethod
     def from_supervision(cls, sv_detections, frame: int | None = None) -> Detections:
-        """A table from a ``supervision.Detections`` (see :func:`vehicle_detection.formats.from_supervision`)."""
-        from .io.formats import from_supervision
-
+        """A table from a ``supervision.Detections`` (see :func:`from_supervision`)."""
         return from_supervision(sv_detections, frame)
+
+
+# --- supervision ------------------------------------------------------------------------------------
+
+
+def to_supervision(detections: Detections):
+    """A ``supervision.Detections``: ``xyxy`` (float), ``confidence`` (score), ``tracker_id``
+    (None when untracked), ``class_id`` 0 (car), and ``data["frame"]`` (plus the other data columns)."""
+    try:
+        sv = importlib.import_module("supervision")  # an optional dependency
+    except ImportError:
+        raise ImportError('supervision is not installed; pip install "vehicle-detection[supervision]"') from None
+    n = len(detections)
+    data = {"frame": np.asarray(detections.frame)}
+    data.update({k: np.asarray(v) for k, v in detections.data.items()})
+    return sv.Detections(
+        xyxy=detections.xyxy.astype(np.float64),
+        confidence=detections.score.astype(np.float64),
+        class_id=np.zeros(n, dtype=int),
+        tracker_id=None if detections.track_id is None else detections.track_id.astype(int),
+        data=data,
+    )
+
+
+def from_supervision(sv_detections, frame: int | None = None) -> Detections:
+    """A :class:`Detections` from a ``supervision.Detections``.
+
+    Boxes are rounded to whole pixels (halves up); ``confidence`` becomes ``score`` (1.0 when
+    None); ``tracker_id`` becomes ``track_id``; ``frame`` is ``data["frame"]`` when present, else
+    ``frame`` (default 0). Other 1-D ``data`` columns are kept.
+    """
+    xyxy = np.floor(np.asarray(sv_detections.xyxy, dtype=np.float64).reshape(-1, 4) + 0.5).astype(np.int64)
+    n = len(xyxy)
+    conf = sv_detections.confidence
+    data = dict(getattr(sv_detections, "data", {}) or {})
+    frames = data.pop("frame", None)
+    if frames is None:
+        frames = 0 if frame is None else frame
+    ids = sv_detections.tracker_id
+    return Detections(
+        xyxy,
+        score=np.ones(n) if conf is None else np.asarray(conf, np.float64),
+        track_id=None if ids is None else np.asarray(ids, np.int64),
+        frame=frames,
+        data={k: np.asarray(v) for k, v in data.items() if np.ndim(v) == 1 and len(v) == n},
+    )

@@ -14,6 +14,7 @@ __all__ = [
     "ModelError",
     "OutputError",
     "DownloadError",
+    "one_line",
 ]
 
 
@@ -58,3 +59,7 @@ class DownloadError(VehicleDetectionError, OSError):
 
     exit_code = 6
 
+
+def one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (ffmpeg and file names can bring line breaks)."""
+    return " | ".join(part.strip() for part in str(exc).splitlines() if part.strip())

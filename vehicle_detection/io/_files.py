@@ -32,6 +32,9 @@ from ..errors import InputError, OutputError, VehicleDetectionError
 __all__ = [
     "atomic_output",
     "check_output_path",
+    "check_outputs",
+    "refuse_inputs",
+    "umask",
     "output_batch",
     "interrupt_on_signals",
     "read_text",
@@ -41,7 +44,8 @@ __all__ = [
 PARTIAL_SUFFIX = ".partial"
 
 
-def _umask() -> int:
+def umask() -> int:
+    """The process's file mode creation mask (read without changing it)."""
     mask = os.umask(0)
     os.umask(mask)
     return mask
@@ -129,6 +133,47 @@ def check_output_path(
     return dest
 
 
+def check_outputs(
+    outputs: Iterable[str | os.PathLike], *, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = ()
+) -> list[Path]:
+    """:func:`check_output_path` for every output of one run, and no two outputs the same file.
+
+    Returns
+    -------
+    list of Path
+        The outputs, in order.
+
+    Raises
+    ------
+    OutputError
+        As :func:`check_output_path`, or if two outputs name the same file.
+    """
+    outputs, inputs = [Path(o) for o in outputs], list(inputs)
+    seen: dict[Path, Path] = {}
+    for out in outputs:
+        key = out.resolve()
+        if key in seen:
+            raise OutputError(f"{out}: named for two outputs of one run ({seen[key]} too); each output needs a file of its own")
+        seen[key] = out
+        check_output_path(out, overwrite=overwrite, inputs=inputs)
+    return outputs
+
+
+def refuse_inputs(dest: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:
+    """Refuse an output folder that is, contains or lies inside one of ``inputs``.
+
+    Raises
+    ------
+    OutputError
+        Naming the folder and the input.
+    """
+    d = Path(os.path.abspath(dest))
+    for src in inputs:
+        s = Path(os.path.abspath(src))
+        if s == d or d in s.parents or s in d.parents:
+            raise OutputError(f"{dest}: output folder would overwrite or lie inside the input {src}; choose another --out")
+
+
 # --- committing outputs ------------------------------------------------------------------------
 
 
@@ -152,7 +197,7 @@ def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
             if dest.exists() and not overwrite:
                 raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
             try:
-                os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
+                os.chmod(tmp, 0o666 & ~umask())  # mkstemp creates 0600; give the usual permissions
             except OSError as exc:
                 raise _write_error(dest, exc) from None
         _Renaming.active += 1

@@ -13,34 +13,39 @@
 * :func:`write_parquet` (needs ``pyarrow``: ``pip install "vehicle-detection[parquet]"``)
   writes the boxes table with a ``video`` column naming the input, so one file can hold a
   whole batch.
-* :func:`to_supervision` / :func:`from_supervision` convert to and from
-  ``supervision.Detections`` (``pip install "vehicle-detection[supervision]"``), also reachable
-  as :meth:`Detections.to_supervision` and :meth:`Detections.from_supervision`.
+* :func:`write_tables` writes the tables one input asks for (:data:`FORMATS`, the lanes CSV
+  included) from its boxes, the same way for videos, images and folders of images.
+
+The conversion to and from ``supervision.Detections`` lives with the table type
+(:meth:`~vehicle_detection.detections.Detections.to_supervision`).
 """
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ._files import atomic_output
 from ..detections import Detections
 from ..errors import InputError
+from ._files import atomic_output
+from .tables import write_boxes_csv, write_lanes_csv
 
-__all__ = ["write_mot", "write_coco", "write_parquet", "read_parquet", "to_supervision", "from_supervision", "COCO_CATEGORY"]
+__all__ = ["write_mot", "write_coco", "write_parquet", "read_parquet", "write_tables", "FORMATS", "COCO_CATEGORY"]
 
 COCO_CATEGORY = {"id": 1, "name": "car", "supercategory": "vehicle"}
+#: The tables an input can get, and the suffix of each one's default name (``NAME`` + suffix):
+#: boxes as CSV, Parquet, MOTChallenge text or COCO JSON (images only), and the lanes CSV.
+FORMATS = {"csv": "_boxes.csv", "parquet": "_boxes.parquet", "mot": "_mot.txt", "coco": "_coco.json", "lanes": "_lanes.csv"}
 
 
 def _optional(module: str, extra: str):
-    import importlib
-
     try:
-        return importlib.import_module(module)
+        return importlib.import_module(module)  # an optional dependency, loaded when asked for
     except ImportError:
         raise ImportError(f"{module} is not installed; pip install \"vehicle-detection[{extra}]\"") from None
 
@@ -158,41 +163,64 @@ def read_parquet(path: str | os.PathLike) -> dict[str, Detections]:
     return out
 
 
-def to_supervision(detections: Detections):
-    """A ``supervision.Detections``: ``xyxy`` (float), ``confidence`` (score), ``tracker_id``
-    (None when untracked), ``class_id`` 0 (car), and ``data["frame"]`` (plus the other data columns)."""
-    sv = _optional("supervision", "supervision")
-    n = len(detections)
-    data = {"frame": np.asarray(detections.frame)}
-    data.update({k: np.asarray(v) for k, v in detections.data.items()})
-    return sv.Detections(
-        xyxy=detections.xyxy.astype(np.float64),
-        confidence=detections.score.astype(np.float64),
-        class_id=np.zeros(n, dtype=int),
-        tracker_id=None if detections.track_id is None else detections.track_id.astype(int),
-        data=data,
-    )
+def write_tables(
+    tables: Mapping[str, str | os.PathLike],
+    detections: Detections,
+    *,
+    name: str,
+    images: Sequence[tuple[str, tuple[int, int]]] | None = None,
+    first: int = 0,
+    lanes: Sequence[tuple[int, float | None, float | None]] | None = None,
+    overwrite: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> list[Path]:
+    """Write the tables of one input, atomically (together inside an :func:`~vehicle_detection.io.output_batch`).
 
+    Parameters
+    ----------
+    tables : mapping of str to path-like
+        Format (a key of :data:`FORMATS`) -> file.
+    detections : Detections
+        The input's boxes. A ``file`` column in ``data`` (the image each box is in, for a folder
+        of images) is written to the CSV and Parquet tables.
+    name : str
+        The input's name: the ``video`` column of the Parquet table.
+    images : sequence of (str, (int, int)), optional
+        For images: each image's file name and ``(height, width)``, frame ``first`` first
+        (needed for ``coco``).
+    first : int
+        The frame index of the first of ``images``.
+    lanes : sequence of (int, float or None, float or None), optional
+        The lanes CSV's rows (``frame, curvature_m, offset_m``; needed for ``lanes``).
+    overwrite, inputs
+        As for :func:`~vehicle_detection.io.check_output_path`.
 
-def from_supervision(sv_detections, frame: int | None = None) -> Detections:
-    """A :class:`Detections` from a ``supervision.Detections``.
-
-    Boxes are rounded to whole pixels (halves up); ``confidence`` becomes ``score`` (1.0 when
-    None); ``tracker_id`` becomes ``track_id``; ``frame`` is ``data["frame"]`` when present, else
-    ``frame`` (default 0). Other 1-D ``data`` columns are kept.
+    Returns
+    -------
+    list of Path
+        The files written, in the order of ``tables``.
     """
-    xyxy = np.floor(np.asarray(sv_detections.xyxy, dtype=np.float64).reshape(-1, 4) + 0.5).astype(np.int64)
-    n = len(xyxy)
-    conf = sv_detections.confidence
-    data = dict(getattr(sv_detections, "data", {}) or {})
-    frames = data.pop("frame", None)
-    if frames is None:
-        frames = 0 if frame is None else frame
-    ids = sv_detections.tracker_id
-    return Detections(
-        xyxy,
-        score=np.ones(n) if conf is None else np.asarray(conf, np.float64),
-        track_id=None if ids is None else np.asarray(ids, np.int64),
-        frame=frames,
-        data={k: np.asarray(v) for k, v in data.items() if np.ndim(v) == 1 and len(v) == n},
-    )
+    unknown = sorted(set(tables) - set(FORMATS))
+    if unknown:
+        raise ValueError(f"unknown table format(s) {', '.join(map(repr, unknown))}; choose from {', '.join(FORMATS)}")
+    files = detections.data.get("file")
+    inputs = list(inputs)
+    out = []
+    for fmt, dest in tables.items():
+        if fmt == "csv":
+            write_boxes_csv(dest, detections, overwrite=overwrite, inputs=inputs, files=None if files is None else list(files))
+        elif fmt == "mot":
+            write_mot(dest, detections, overwrite=overwrite, inputs=inputs)
+        elif fmt == "parquet":
+            write_parquet(dest, [(name, detections)], overwrite=overwrite, inputs=inputs)
+        elif fmt == "coco":
+            if images is None:
+                raise ValueError("coco: the images' names and sizes are needed (images=)")
+            shifted = detections.replace(frame=detections.frame - first) if len(detections) else detections
+            write_coco(dest, shifted, [n for n, _ in images], [size for _, size in images], overwrite=overwrite, inputs=inputs)
+        else:  # lanes
+            if lanes is None:
+                raise ValueError("lanes: the lanes' rows are needed (lanes=)")
+            write_lanes_csv(dest, lanes, overwrite=overwrite, inputs=inputs)
+        out.append(Path(dest))
+    return out

@@ -27,6 +27,8 @@ per frame, empty fields where no lane was found.
 
 from __future__ import annotations
 
+import csv
+import io
 import os
 import re
 from collections.abc import Iterable
@@ -34,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import atomic_output, read_text
 from ..detections import Detections
 from ..errors import InputError
 from ..geometry import MAX_COORD
+from ._files import atomic_output, read_text
 
 __all__ = [
     "BOXES_CSV_HEADER",
@@ -208,8 +210,6 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
         )
     distances, files = _HEADERS[header]
     if files:  # file names may be quoted (RFC 4180), line breaks included
-        import csv
-        import io
 
         reader = csv.reader(io.StringIO("\n".join(lines[1:]), newline=""))
         records = [(reader.line_num + 1, fields) for fields in reader]  # line of the record's end

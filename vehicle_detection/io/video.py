@@ -1,8 +1,8 @@
 """Video files in and out: decoding and H.264 encoding with PyAV, in background threads.
 
 Inside the library a video frame is, like every image, RGB ``uint8`` with shape ``(H, W, 3)``.
-This module only reads and writes frames; :mod:`vehicle_detection.pipeline` runs the detector
-over them.
+This module only reads and writes frames; :mod:`vehicle_detection.pipeline.video` runs the
+detector over them.
 
 Design
 ------
@@ -53,7 +53,7 @@ dimensions, so a frame with an odd width or height is padded with one black colu
 or one black row at the bottom. Reading the file back gives the padded, even size. Because
 chroma is shared by 2x2 pixel blocks, the padding can take on a faint tint of the neighbouring
 colour. The file appears under its final name only when it is complete (see
-:mod:`vehicle_detection._files`); an abandoned file is deleted without first being finished.
+:func:`vehicle_detection.io.atomic_output`); an abandoned file is deleted without first being finished.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ from av.video.reformatter import VideoReformatter
 from ._files import atomic_output, check_output_path
 from ..errors import InputError, OutputError
 
-__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "X264_PRESETS"]
+__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
 
 X264_PRESETS = (
     "ultrafast",
@@ -89,6 +89,29 @@ X264_PRESETS = (
     "placebo",
 )
 
+
+@dataclass(frozen=True)
+class Encoding:
+    """How an annotated video is encoded: x264's speed preset and quality.
+
+    Parameters
+    ----------
+    preset : str, default "ultrafast"
+        One of :data:`X264_PRESETS`. ``ultrafast`` leaves the most CPU to the detector (files
+        about twice the size of ``veryfast`` at the same ``crf``).
+    crf : int, default 23
+        Constant rate factor, 0 (lossless) to 51; lower is better and larger.
+    """
+
+    preset: str = "ultrafast"
+    crf: int = 23
+
+    def __post_init__(self) -> None:
+        if self.preset not in X264_PRESETS:
+            raise ValueError(f"preset must be one of {', '.join(X264_PRESETS)}; got {self.preset!r}")
+        if isinstance(self.crf, bool) or not isinstance(self.crf, (int, np.integer)) or not 0 <= self.crf <= 51:
+            raise ValueError(f"crf must be an integer from 0 to 51, got {self.crf!r}")
+
 #: Frames buffered between :meth:`VideoWriter.write` and the encoder thread.
 _WRITE_QUEUE_SIZE = 4
 #: Bytes the muxer collects before each write to the output file.
@@ -98,12 +121,6 @@ _OUTPUT_BUFFER_BYTES = 1 << 20
 #: the rule that only frames from before the damage are yielded; the detector keeps both cores
 #: busy anyway.
 _DECODER_THREAD_TYPE = "SLICE"
-_DECODER_THREADS = 0
-#: Encoder threads (0: libx264 decides).
-_ENCODER_THREADS = 0
-#: Colour conversion (libswscale) threads per frame (0: libswscale decides; one per core was
-#: faster end to end than a single thread).
-_SCALER_THREADS = 0
 
 #: FFmpeg's codes for BT.709 (AVCOL_PRI_BT709 = AVCOL_TRC_BT709 = AVCOL_SPC_BT709) and for
 #: limited ("tv", "MPEG") range (AVCOL_RANGE_MPEG).
@@ -260,10 +277,10 @@ def _orientation(frame: av.VideoFrame) -> tuple[int, bool]:
     return _ORIENTATIONS.get(tuple(int(v) for v in snapped), (0, False))
 
 
-def _setup_decoder(stream: av.video.stream.VideoStream) -> None:
+def _setup_decoder(stream: av.video.stream.VideoStream, threads: int) -> None:
     ctx = stream.codec_context
     ctx.thread_type = _DECODER_THREAD_TYPE
-    ctx.thread_count = _DECODER_THREADS
+    ctx.thread_count = threads
 
 
 def _decoded_frames(container, stream, path: Path) -> Iterator[av.VideoFrame]:
@@ -326,7 +343,7 @@ def _probe(path: str | os.PathLike) -> tuple[Path, VideoInfo, _Layout]:
         stream = _video_stream(container, path)
         # The first frame gives the real frame size and the display matrix (PyAV exposes the
         # matrix on frames only).
-        _setup_decoder(stream)
+        _setup_decoder(stream, 0)  # one frame: FFmpeg chooses the threads
         declared = stream.frames or None
         first = None
         try:
@@ -382,7 +399,7 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
 # --------------------------------------------------------------------------------------------
 
 
-def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.ndarray, None, None]:
+def read_frames(path: str | os.PathLike, *, prefetch: int = 4, threads: int = 0) -> Generator[np.ndarray, None, None]:
     """Decode a video file frame by frame.
 
     The file is probed right away, so a missing or unreadable file raises here. Decoding starts
@@ -395,6 +412,9 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.n
         The video file.
     prefetch : int, default 4
         Decoded frames to buffer (at 720p, 2.7 MB each).
+    threads : int, default 0
+        Decoder (slice) threads and colour conversion threads; 0 lets FFmpeg choose (one per
+        core). A process that shares the cores with others gives its share.
 
     Yields
     ------
@@ -428,15 +448,20 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4) -> Generator[np.n
     """
     if isinstance(prefetch, bool) or not isinstance(prefetch, (int, np.integer)) or prefetch < 1:
         raise ValueError(f"prefetch must be a positive integer, got {prefetch!r}")
+    threads = _check_threads(threads)
     path, _, layout = _probe(path)
-    return _decode(path, layout, int(prefetch))
+    return _decode(path, layout, int(prefetch), threads)
 
 
-def _to_rgb(frame: av.VideoFrame, layout: _Layout, scaler: VideoReformatter) -> np.ndarray:
+def _check_threads(threads) -> int:
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+        raise ValueError(f"threads must be a whole number >= 0 (0: FFmpeg chooses), got {threads!r}")
+    return int(threads)
+
+
+def _to_rgb(frame: av.VideoFrame, layout: _Layout, scaler: VideoReformatter, threads: int) -> np.ndarray:
     """An upright RGB copy of ``frame`` that nothing else references."""
-    rgb = scaler.reformat(
-        frame, width=layout.coded_width, height=layout.coded_height, format="rgb24", threads=_SCALER_THREADS
-    )
+    rgb = scaler.reformat(frame, width=layout.coded_width, height=layout.coded_height, format="rgb24", threads=threads)
     array = rgb.to_ndarray()  # a view of the new frame's buffer, which it keeps alive
     if layout.quarter_turns:
         array = np.rot90(array, layout.quarter_turns)
@@ -456,16 +481,18 @@ class _DecodeState:
         self.error: BaseException | None = None
 
 
-def _decoder_thread(path: Path, layout: _Layout, q: queue.Queue, stop: threading.Event, state: _DecodeState) -> None:
+def _decoder_thread(
+    path: Path, layout: _Layout, q: queue.Queue, stop: threading.Event, state: _DecodeState, threads: int
+) -> None:
     n_read = 0
     try:
         with _open_input(path) as container:
             stream = container.streams[layout.stream_index]
-            _setup_decoder(stream)
+            _setup_decoder(stream, threads)
             scaler = VideoReformatter()
             try:
                 for frame in _decoded_frames(container, stream, path):
-                    if not _put(q, _to_rgb(frame, layout, scaler), stop):
+                    if not _put(q, _to_rgb(frame, layout, scaler, threads), stop):
                         return
                     n_read += 1
             except _Damage as damage:
@@ -480,13 +507,13 @@ def _decoder_thread(path: Path, layout: _Layout, q: queue.Queue, stop: threading
         _put(q, _END, stop)
 
 
-def _decode(path: Path, layout: _Layout, prefetch: int) -> Generator[np.ndarray, None, None]:
+def _decode(path: Path, layout: _Layout, prefetch: int, threads: int) -> Generator[np.ndarray, None, None]:
     q: queue.Queue = queue.Queue(maxsize=prefetch)
     stop = threading.Event()
     state = _DecodeState()
     thread = threading.Thread(
         target=_decoder_thread,
-        args=(path, layout, q, stop, state),
+        args=(path, layout, q, stop, state, threads),
         name="vehicle_detection-video-decoder",
         daemon=True,
     )
@@ -583,6 +610,8 @@ class VideoWriter:
     preset : str, default "veryfast"
         x264 speed preset, one of :data:`X264_PRESETS`. Slower presets give smaller files at
         the same quality.
+    threads : int, default 0
+        Encoder threads and colour conversion threads; 0 lets FFmpeg choose.
 
     Raises
     ------
@@ -630,6 +659,7 @@ class VideoWriter:
         inputs: Iterable[str | os.PathLike] = (),
         crf: int = 23,
         preset: str = "veryfast",
+        threads: int = 0,
     ) -> None:
         try:
             fps_value = float(fps)
@@ -647,6 +677,7 @@ class VideoWriter:
             raise ValueError(f"crf must be an integer from 0 to 51, got {crf!r}")
         if preset not in X264_PRESETS:
             raise ValueError(f"preset must be one of {', '.join(X264_PRESETS)}; got {preset!r}")
+        self.threads = _check_threads(threads)
 
         self.inputs = tuple(inputs)
         self.overwrite = bool(overwrite)
@@ -697,7 +728,7 @@ class VideoWriter:
         stream.width, stream.height = self.output_size
         stream.pix_fmt = "yuv420p"
         ctx = stream.codec_context
-        ctx.thread_count = _ENCODER_THREADS
+        ctx.thread_count = self.threads
         ctx.color_range = _LIMITED_RANGE
         ctx.color_primaries = ctx.color_trc = ctx.colorspace = _BT709
         ctx.open()  # a refusal of the settings surfaces here, not at the first frame
@@ -754,7 +785,7 @@ class VideoWriter:
             try:
                 rgb = av.VideoFrame.from_numpy_buffer(item, format="rgb24")
                 yuv = scaler.reformat(
-                    rgb, format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG", threads=_SCALER_THREADS
+                    rgb, format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG", threads=self.threads
                 )
                 yuv.pts = pts
                 pts += 1

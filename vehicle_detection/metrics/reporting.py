@@ -25,10 +25,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
-from ..io._files import atomic_output, output_batch
 from ..detections import Detections
 from ..errors import InputError, OutputError
+from ..io._files import atomic_output, output_batch
+from ..io.images import list_images, read_image
+from ..io.video import probe_video, read_frames
+from ..viz.drawing import SHEET_COLORS, failure_sheet, failure_tile
 from .detection import FAILURE_KINDS, Annotations, Failure, camera_name, find_failures
 
 __all__ = [
@@ -89,9 +93,6 @@ def frame_size(source: str | os.PathLike, annotations: Annotations | None = None
     annotations : Annotations, optional
         For a folder: the image of its first labelled frame is measured (else the first image).
     """
-    from ..io.images import list_images, read_image
-    from ..io.video import probe_video
-
     source = Path(source)
     try:
         if source.is_dir():
@@ -127,9 +128,6 @@ def labelled_images(source: str | os.PathLike, frames: Collection[int]) -> Itera
     (int, ndarray of uint8, shape (H, W, 3))
         Each wanted frame index that exists and its RGB frame; one frame is alive at a time.
     """
-    from ..io.images import list_images, read_image
-    from ..io.video import read_frames
-
     wanted = sorted(set(int(f) for f in frames))
     if not wanted:
         return
@@ -210,8 +208,6 @@ def _tile_title(item: ReportSource, frame: int) -> str:
 
 def _tiles_of(item: ReportSource, failures: Sequence[Failure]) -> Iterator[tuple[Failure, np.ndarray]]:
     """Each failure of one labels file with its tile, reading each needed frame once."""
-    from ..viz.drawing import failure_tile
-
     by_frame: dict[int, list[Failure]] = {}
     for f in failures:
         by_frame.setdefault(f.frame, []).append(f)
@@ -253,8 +249,6 @@ def camera_sheet(camera: str, items: Sequence[ReportSource], *, limit: int = MAX
     counts : dict of str to int
         ``miss``, ``false positive`` and ``loose`` (all found), ``shown`` and ``left_out``.
     """
-    from ..viz.drawing import failure_sheet
-
     failures = [(i, f) for i, item in enumerate(items) for f in find_failures(item.detections, item.annotations)]
     chosen = select_failures(failures, limit)
     tiles: dict[int, np.ndarray] = {}
@@ -368,8 +362,6 @@ def _palette(image: np.ndarray, keep: Sequence[tuple[int, int, int]]):
     A sheet of photographs is about a third the size as a palette PNG; the box, caption and
     background colours stay exact (a median-cut palette alone would only approximate them).
     """
-    from PIL import Image
-
     img = Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8))
     keep = sorted(set(keep))
     base = img.quantize(colors=256 - len(keep), method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
@@ -385,8 +377,6 @@ def _palette(image: np.ndarray, keep: Sequence[tuple[int, int, int]]):
 
 
 def _write_sheet(path: Path, sheet: np.ndarray, *, overwrite: bool, inputs: Iterable[str | os.PathLike]) -> Path:
-    from ..viz.drawing import SHEET_COLORS
-
     small = _palette(sheet, SHEET_COLORS)
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         small.save(tmp, format="PNG", optimize=True)

@@ -13,7 +13,7 @@ vehicles drawn::
 
 It runs **live**: each frame is searched and the tracker advanced at once
 (:meth:`~vehicle_detection.detector.Detector.step`), without the back-fill of
-:func:`~vehicle_detection.pipeline.process_video` (which holds frames back ``min_hits - 1``
+:func:`~vehicle_detection.pipeline.video.process_video` (which holds frames back ``min_hits - 1``
 frames to draw a car from the frame it appeared). A car is therefore drawn from the frame its
 track is confirmed, a few frames later than in ``process_video``; use ``process_video`` when the
 whole video is at hand.
@@ -32,6 +32,10 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
+
+from ..detections import Detections
+from ..detector import Detector
+from ..viz.drawing import draw_detections
 
 __all__ = ["MoviepyAdapter"]
 
@@ -54,8 +58,6 @@ class MoviepyAdapter:
     """
 
     def __init__(self, detector=None, *, draw: bool = True) -> None:
-        from ..detector import Detector
-
         self.detector = detector if detector is not None else Detector()
         self.draw = draw
         self.reset()
@@ -71,8 +73,6 @@ class MoviepyAdapter:
 
     @property
     def detections(self):
-        from ..detections import Detections
-
         return Detections.concatenate(self._found) if self._found else Detections.empty(tracked=True)
 
     @property
@@ -80,8 +80,6 @@ class MoviepyAdapter:
         return len(self._found)
 
     def _process(self, frame: np.ndarray) -> np.ndarray:
-        from ..viz.drawing import draw_detections
-
         found = self.detector.step(frame, self.tracker)
         self._found.append(found)
         out = draw_detections(frame, found) if self.draw else frame

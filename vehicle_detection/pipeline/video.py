@@ -1,49 +1,75 @@
-"""The pipeline layer: detection and tracking over a video file, and drawing the results.
+"""A video through the detector: decode, undistort, detect and track, measure, draw, encode.
 
-:mod:`vehicle_detection.video` only reads and writes frames; this module connects it to the
-detector (:mod:`vehicle_detection.detector`), the boxes CSV (:mod:`vehicle_detection.tables`)
-and drawing (:mod:`vehicle_detection.drawing`).
+:mod:`vehicle_detection.io.video` only reads and writes frames; :func:`process_video` connects
+it to the detector (:mod:`vehicle_detection.detector`), the road (:mod:`vehicle_detection.road`),
+drawing (:mod:`vehicle_detection.viz.drawing`) and the tables (:func:`~vehicle_detection.io.write_tables`).
 """
 
 from __future__ import annotations
 
 import itertools
 import os
-import sys
 from collections import deque
+from collections.abc import Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack, closing
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..io._files import check_output_path, output_batch
-from ..errors import InputError, OutputError
+from .._moved import old_keywords
+from ..detections import Detections
+from ..detector import Detector
+from ..errors import InputError, UsageError
+from ..io import check_outputs, output_batch, progress_bar, write_tables
 from ..io.images import check_frame_shape
-from ..io.video import VideoWriter, probe_video, read_frames
+from ..io.video import Encoding, VideoWriter, probe_video, read_frames
+from ..road.survey import Road, RoadSurvey
+from ..tracker import Tracker, TrackerState
+from ..viz.drawing import draw_detections
 
-__all__ = ["process_video"]
+__all__ = ["process_video", "frame_range"]
 
-
-def _in_notebook() -> bool:
-    """True inside a Jupyter kernel, where ``tqdm.auto`` draws a widget (stderr is no terminal there)."""
-    shell = sys.modules.get("IPython")
-    try:
-        return shell is not None and type(shell.get_ipython()).__name__ == "ZMQInteractiveShell"
-    except Exception:
-        return False
+#: Frames searched at once when no thread budget is given.
+SEARCH_WORKERS = 2
 
 
-def _prepared(source, helper: ThreadPoolExecutor, camera, lane_tracker, lanes_ahead: deque, ahead: int = 3):
-    """Frames undistorted (when ``camera``) in ``helper``, ``ahead`` frames in advance.
+def frame_range(frames: range | tuple[int | None, int | None] | None) -> tuple[int, int | None]:
+    """``(start, end)`` of decoded frames ``start <= index < end`` (``end`` None: to the last).
 
-    With ``lane_tracker``, the lane of each frame is found in the same (single) helper thread,
-    so in frame order; its future is appended to ``lanes_ahead`` as the frame is yielded.
+    ``frames`` is None (every frame), a ``range`` with step 1, or ``(start, end)`` with either
+    None.
+
+    Raises
+    ------
+    UsageError
+        If it is not a range of frame indexes (``0 <= start <= end``).
+    """
+    if frames is None:
+        return 0, None
+    if isinstance(frames, range):
+        if frames.step != 1:
+            raise UsageError("frames: a range with step 1")
+        return frames.start, frames.stop
+    start, end = frames
+    start = 0 if start is None else int(start)
+    if start < 0 or (end is not None and int(end) < start):
+        raise UsageError(f"frames: ({start}, {end}) is not a range of frame indexes (0 <= start <= end)")
+    return start, None if end is None else int(end)
+
+
+def _prepared(source: Iterable[np.ndarray], helper: ThreadPoolExecutor, survey: RoadSurvey, lanes_ahead: deque,
+              ahead: int = 3) -> Iterator[np.ndarray]:
+    """Frames undistorted in ``helper``, ``ahead`` frames in advance.
+
+    With lanes, the lane of each frame is found in the same (single) helper thread, so in frame
+    order; its future is appended to ``lanes_ahead`` as the frame is yielded.
     """
 
     def work(frame):
-        if camera is not None:
-            frame = camera.undistort(frame)
-        return frame, None if lane_tracker is None else helper.submit(lane_tracker.step, frame)
+        frame = survey.undistort(frame)
+        return frame, helper.submit(survey.find_lane, frame) if survey.finds_lanes else None
 
     pending: deque = deque()
     for frame in source:
@@ -60,178 +86,148 @@ def _prepared(source, helper: ThreadPoolExecutor, camera, lane_tracker, lanes_ah
         yield frame
 
 
+def _legacy(kwargs: dict) -> dict:
+    """The earlier keywords (``boxes_csv``, ``start``, ``camera``, ...) as the new objects."""
+    start, end = kwargs.pop("start", 0), kwargs.pop("end", None)
+    if "frames" not in kwargs and (start or end is not None or "max_frames" in kwargs):
+        kwargs["frames"] = (start, end)
+    limit = kwargs.pop("max_frames", None)
+    if limit is not None:
+        a, b = frame_range(kwargs.get("frames"))
+        kwargs["frames"] = (a, a + limit if b is None else min(b, a + limit))
+    enc = {k: kwargs.pop(k) for k in ("crf", "preset") if k in kwargs}
+    if enc:
+        kwargs["encoding"] = replace(kwargs.get("encoding") or Encoding(), **enc)
+    road = {k: kwargs.pop(k) for k in ("camera", "lanes", "birds_eye") if k in kwargs}
+    if road:
+        kwargs["road"] = replace(kwargs.get("road") or Road(), **road)
+    tables = dict(kwargs.get("tables") or {})
+    for old, fmt in (("boxes_csv", "csv"), ("lanes_csv", "lanes")):
+        value = kwargs.pop(old, None)
+        if value is not None:
+            tables[fmt] = value
+    if tables:
+        kwargs["tables"] = tables
+    if "workers" in kwargs:
+        kwargs["threads"] = kwargs.pop("workers")
+    return kwargs
+
+
+@old_keywords(("boxes_csv", "lanes_csv", "start", "end", "max_frames", "crf", "preset", "workers", "camera", "lanes",
+               "birds_eye"), _legacy)
 def process_video(
     path: str | os.PathLike,
     output: str | os.PathLike | None = None,
     *,
-    detector=None,
-    boxes_csv: str | os.PathLike | None = None,
+    detector: Detector | None = None,
+    frames: range | tuple[int | None, int | None] | None = None,
+    road: Road | None = None,
+    encoding: Encoding | None = None,
+    tables: Mapping[str, str | os.PathLike] | None = None,
     overwrite: bool = False,
     progress: bool = True,
-    max_frames: int | None = None,
-    crf: int = 23,
-    preset: str = "ultrafast",
-    start: int = 0,
-    end: int | None = None,
-    workers: int = 2,
-    camera=None,
-    lanes: bool = False,
-    lanes_csv: str | os.PathLike | None = None,
-    birds_eye=None,
-    tracker=None,
-):
-    """Detect and track vehicles through a video; write the annotated video and the boxes.
+    tracker: Tracker | None = None,
+    threads: int | None = None,
+) -> Detections:
+    """Detect and track vehicles through a video; write the annotated video and the tables.
 
     Decoding (a thread), detection (this thread, numba on both cores) and encoding (a thread)
-    overlap.
+    overlap. All outputs are committed together when the run succeeds (the video last); on any
+    failure, Ctrl-C included, none is, and earlier outputs of the same names stay as they were.
 
     Parameters
     ----------
     path : path-like
         Any video FFmpeg (PyAV) reads.
     output : path-like, optional
-        Annotated H.264 MP4 to write (atomically); None writes no video.
+        Annotated H.264 MP4 to write; None writes no video.
     detector : Detector, optional
         Defaults to ``Detector()`` (the embedded model).
-    boxes_csv : path-like, optional
-        CSV of every reported box (``frame,x1,y1,x2,y2,track_id,score``), written atomically
-        once the whole video is processed, just before the video is renamed into place; it is
-        removed again if the video then fails, so a failed run leaves neither.
+    frames : range or (int, int), optional
+        Only the decoded frames ``start <= index < end`` (default: all; see :func:`frame_range`).
+        The frames before ``start`` are decoded and dropped; ``frame`` in the result stays the
+        decoded index.
+    road : Road, optional
+        The camera to undistort every frame with, distances on the road plane, lanes
+        (:class:`~vehicle_detection.road.survey.Road`); the video must fit it (else
+        :class:`InputError`, before any frame).
+    encoding : Encoding, optional
+        x264 preset and quality of ``output`` (:class:`~vehicle_detection.io.video.Encoding`).
+    tables : mapping of str to path-like, optional
+        Tables to write, format -> file (:data:`~vehicle_detection.io.formats.FORMATS`: ``csv``,
+        ``parquet``, ``mot``, and ``lanes``, which finds lanes); ``coco`` is for images only.
     overwrite : bool
         Replace existing outputs (never the input).
     progress : bool
-        Show a progress bar on stderr.
-    max_frames : int, optional
-        Stop after this many frames (counted from ``start``).
-    crf, preset : int, str
-        x264 quality (lower is better) and speed preset. ``ultrafast`` leaves the most CPU to
-        the detector (files about twice the size of ``veryfast`` at the same ``crf``).
-    start, end : int, optional
-        Only the decoded frames ``start <= index < end`` (default: all). The frames before
-        ``start`` are decoded and dropped; ``frame`` in the result stays the decoded index.
-    workers : int
-        Frames searched at once (threads; see :meth:`Detector.track_frames`).
-    camera : Camera, optional
-        Undistort every frame before the search (:mod:`vehicle_detection.camera`); the video
-        must have the camera's image size (else :class:`InputError`, before any frame).
-    lanes : bool
-        Find the lane in every frame (:class:`~vehicle_detection.lanes.LaneTracker`) and draw
-        it with its radius of curvature and the car's offset. Needs a bird's-eye transform.
-    lanes_csv : path-like, optional
-        CSV ``frame,curvature_m,offset_m`` (empty fields where no lane), written atomically with
-        the boxes CSV; implies ``lanes``.
-    birds_eye : BirdsEye, optional
-        The road-plane transform; default ``camera.birds_eye``. When known, every box gets
-        ``distance_m`` and ``relative_speed_mps`` in its ``data`` (NaN where unknown).
+        Show a progress bar on stderr (a terminal or a notebook).
     tracker : Tracker, optional
-        The tracker to advance (``detector.new_tracker()`` by default; its frame counter must be
-        at ``start``). Afterwards its ``state`` tells, for instance, the horizon the search used.
+        The tracker to advance (by default a new one; its frame counter must be at ``start``).
+        Afterwards its ``state`` tells, for instance, the horizon the search used.
+    threads : int, optional
+        The run's share of the cores: frames searched at once, and the codec's threads. None:
+        :data:`SEARCH_WORKERS` frames at once, and FFmpeg chooses its threads.
 
     Returns
     -------
     Detections
-        Every reported box, frame by frame (``frame``: 0-based decoded frame index), tracked.
+        Every reported box, frame by frame (``frame``: 0-based decoded frame index), tracked;
+        with ``distance_m`` and ``relative_speed_mps`` when the road plane is known.
     """
-    from contextlib import ExitStack
-
-    from ..detections import Detections
-    from ..detector import Detector
-    from ..viz.drawing import draw_detections
-    from ..io.tables import DISTANCE_COLUMNS, write_boxes_csv, write_lanes_csv
-
-    path = Path(path)
-    detector = detector or Detector()
-    # Refuse bad outputs before decoding anything.
-    for out in (output, boxes_csv):
-        if out is not None:
-            check_output_path(out, overwrite=overwrite, inputs=[path])
-    if output is not None and boxes_csv is not None and Path(output).resolve() == Path(boxes_csv).resolve():
-        raise OutputError(f"{output}: the video and the boxes CSV cannot be the same file")
-    info = probe_video(path)
-    check_frame_shape(info.height, info.width, str(path))  # bounded search memory, before any frame
-    if start < 0 or (end is not None and end < start):
-        raise ValueError(f"start ({start}) and end ({end}) must satisfy 0 <= start <= end")
-    stop = end
-    if max_frames is not None:
-        stop = start + max_frames if stop is None else min(stop, start + max_frames)
-    total = info.n_frames
-    if total is not None:
-        total = max(0, min(total, stop if stop is not None else total) - start)
-    elif stop is not None:
-        total = stop - start
-    lanes = lanes or lanes_csv is not None
-    if lanes_csv is not None:
-        check_output_path(lanes_csv, overwrite=overwrite, inputs=[path])
-        if any(o is not None and Path(o).resolve() == Path(lanes_csv).resolve() for o in (output, boxes_csv)):
-            raise OutputError(f"{lanes_csv}: the lanes CSV must be a file of its own")
-    if camera is not None:
-        camera.check_size(info.width, info.height, f"{path}: the video")
-    if birds_eye is None and camera is not None:
-        birds_eye = camera.birds_eye
-    if birds_eye is not None and tuple(birds_eye.image_size) != (info.width, info.height):
-        w, h = birds_eye.image_size
-        raise InputError(f"{path}: the video is {info.width}x{info.height}, but the bird's-eye transform is for {w}x{h} frames")
-    if lanes and birds_eye is None:
-        raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
-    lane_tracker = distances = None
-    if lanes:
-        from ..road.lanes import LaneTracker, draw_lane, lane_row
-
-        lane_tracker = LaneTracker(birds_eye)
-    if birds_eye is not None:
-        from ..road.lanes import DistanceTracker
-
-        distances = DistanceTracker(birds_eye, info.fps or 25.0)
-    lane_rows = []
+    path, detector, road = Path(path), detector or Detector(), road or Road()
+    start, end = frame_range(frames)
+    tables = dict(tables or {})
+    if "lanes" in tables:
+        road = replace(road, lanes=True)
+    info = _check_run(path, output, road, tables, overwrite)
     if tracker is None:
-        from ..tracker import Tracker, TrackerState
-
         tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))  # frames keep their decoded index
     elif tracker.state.frame_index != start:
         raise ValueError(f"the tracker continues at frame {tracker.state.frame_index}, not at start={start}")
-    detections = []
-    frames = read_frames(path)
-    try:
-        # All outputs are committed together when the run succeeds (the video last); on any
-        # failure, Ctrl-C included, none is, and earlier outputs of the same names stay as they were.
-        with output_batch(), ExitStack() as stack:
-            writer = None
-            if output is not None:
-                writer = stack.enter_context(
-                    VideoWriter(output, info.fps, info.size, overwrite=overwrite, inputs=[path], crf=crf, preset=preset)
-                )
-            bar = None
-            if progress and (sys.stderr.isatty() or _in_notebook()):
-                from tqdm.auto import tqdm
-
-                bar = stack.enter_context(tqdm(total=total, unit="frame", desc=path.name, leave=False))
-            source = frames if (start == 0 and stop is None) else itertools.islice(frames, start, stop)
-            lanes_ahead: deque = deque()
-            if camera is not None or lane_tracker is not None:
-                # Undistortion and lane finding run in a helper thread, in frame order, a few
-                # frames ahead of the search (OpenCV releases the GIL), not on this thread's path.
-                helper = stack.enter_context(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lanes"))
-                source = _prepared(source, helper, camera, lane_tracker, lanes_ahead)
-            for index, (frame, found) in enumerate(detector.track_frames(source, tracker, workers=workers), start=start):
-                if distances is not None:
-                    found = distances.update(found)
-                detections.append(found)
-                lane = None
-                if lane_tracker is not None:
-                    lane = lanes_ahead.popleft().result()
-                    lane_rows.append(lane_row(index, lane))
-                if writer is not None:
-                    shown = draw_lane(frame, lane, birds_eye) if lane_tracker is not None else frame
-                    writer.write(draw_detections(shown, found))
-                if bar is not None:
-                    bar.update()
-            table = Detections.concatenate(detections)
-            if distances is not None and not len(table):  # the columns, even without boxes
-                table = table.replace(data={**table.data, **{c: np.zeros(0) for c in DISTANCE_COLUMNS}})
-            if lanes_csv is not None:
-                write_lanes_csv(lanes_csv, lane_rows, overwrite=overwrite, inputs=[path])
-            if boxes_csv is not None:
-                write_boxes_csv(boxes_csv, table, overwrite=overwrite, inputs=[path])
-    finally:
-        frames.close()
+    survey = road.survey(info.fps or 25.0)
+    encoding, codec = encoding or Encoding(), threads or 0
+    with output_batch(), ExitStack() as stack:
+        decoded = stack.enter_context(closing(read_frames(path, threads=codec)))
+        writer = None
+        if output is not None:
+            writer = stack.enter_context(VideoWriter(output, info.fps, info.size, overwrite=overwrite, inputs=[path],
+                                                     crf=encoding.crf, preset=encoding.preset, threads=codec))
+        bar = stack.enter_context(progress_bar(_n_frames(info.n_frames, start, end), path.name, enabled=progress))
+        source = decoded if (start == 0 and end is None) else itertools.islice(decoded, start, end)
+        lanes_ahead: deque = deque()
+        if survey.changes_frames:
+            # Undistortion and lane finding run in a helper thread, in frame order, a few frames
+            # ahead of the search (OpenCV releases the GIL), not on this thread's path.
+            helper = stack.enter_context(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lanes"))
+            source = _prepared(source, helper, survey, lanes_ahead)
+        found = []
+        for index, (frame, boxes) in enumerate(detector.track_frames(source, tracker, workers=threads or SEARCH_WORKERS),
+                                               start=start):
+            boxes = survey.measure(boxes)
+            found.append(boxes)
+            lane = lanes_ahead.popleft().result() if survey.finds_lanes else None
+            survey.record(index, lane)
+            if writer is not None:
+                writer.write(draw_detections(survey.draw(frame, lane), boxes))
+            if bar is not None:
+                bar.update()
+        table = survey.complete(Detections.concatenate(found))
+        write_tables(tables, table, name=path.name, lanes=survey.lane_rows, overwrite=overwrite, inputs=[path])
     return table
+
+
+def _check_run(path: Path, output, road: Road, tables: dict, overwrite: bool):
+    """Refuse bad outputs and a video the road does not fit, before decoding anything; the video's info."""
+    if "coco" in tables:
+        raise InputError(f"{path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
+    check_outputs([o for o in (output, *tables.values()) if o is not None], overwrite=overwrite, inputs=[path])
+    info = probe_video(path)
+    check_frame_shape(info.height, info.width, str(path))  # bounded search memory, before any frame
+    road.check(info.width, info.height, f"{path}: the video")
+    return info
+
+
+def _n_frames(n: int | None, start: int, end: int | None) -> int | None:
+    """Frames ``start <= index < end`` of a video of ``n`` (None: unknown)."""
+    if n is None:
+        return None if end is None else end - start
+    return max(0, min(n, end if end is not None else n) - start)

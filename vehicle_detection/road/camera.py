@@ -12,7 +12,7 @@ The result is a frozen :class:`Camera`, saved as JSON (never a pickle) with the 
 the matrix, the distortion coefficients, the RMS reprojection error in pixels, and which photos
 were used, cropped or skipped. :meth:`Camera.undistort` uses a remap table computed once per
 camera. A camera file may also carry the bird's-eye transform of
-:mod:`vehicle_detection.lanes` (``birds_eye``), derived from straight-road frames.
+:mod:`vehicle_detection.road.lanes` (``birds_eye``), derived from straight-road frames.
 """
 
 from __future__ import annotations
@@ -20,15 +20,18 @@ from __future__ import annotations
 import json
 import os
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
-from ..io._files import atomic_output, read_text
 from ..errors import InputError
+from ..io import atomic_output, read_text
+from ..io.images import list_images, read_image
+from .lanes import BirdsEye
 
 __all__ = ["Camera", "calibrate", "find_chessboard", "MAX_CROP"]
 
@@ -63,8 +66,6 @@ def find_chessboard(image: np.ndarray, pattern: tuple[int, int] = (9, 6)) -> np.
 
 def _find_board(image: np.ndarray, pattern: tuple[int, int]) -> tuple[np.ndarray | None, str]:
     """``(corners, "")`` or ``(None, why)``."""
-    import cv2
-
     gray = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) if image.ndim == 3 else np.ascontiguousarray(image)
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     found, corners = cv2.findChessboardCornersSB(gray, pattern, flags)
@@ -155,8 +156,6 @@ class Camera:
     # --- undistortion ------------------------------------------------------------------------
     @cached_property
     def _maps(self):
-        import cv2
-
         return cv2.initUndistortRectifyMap(self.matrix, self.distortion, None, self.matrix, self.image_size, cv2.CV_16SC2)
 
     def check_size(self, width: int, height: int, what: str = "image") -> None:
@@ -170,23 +169,17 @@ class Camera:
 
     def undistort(self, image: np.ndarray) -> np.ndarray:
         """The image with the lens distortion removed (same size and camera matrix)."""
-        import cv2
-
         self.check_size(image.shape[1], image.shape[0])
         m1, m2 = self._maps
         return cv2.remap(image, m1, m2, cv2.INTER_LINEAR)
 
     def undistort_points(self, points) -> np.ndarray:
         """Pixel positions in the distorted image -> positions in the undistorted image, ``(n, 2)``."""
-        import cv2
-
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 1, 2)
         return cv2.undistortPoints(pts, self.matrix, self.distortion, P=self.matrix).reshape(-1, 2)
 
     def distort_points(self, points) -> np.ndarray:
         """Pixel positions in the undistorted image -> the original (distorted) image, ``(n, 2)``."""
-        import cv2
-
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         norm = (pts - self.matrix[:2, 2]) / np.diag(self.matrix)[:2]
         obj = np.c_[norm, np.ones(len(norm))]
@@ -245,8 +238,6 @@ class Camera:
         try:
             birds_eye = None
             if d.get("birds_eye") is not None:
-                from .lanes import BirdsEye
-
                 birds_eye = BirdsEye.from_dict(d["birds_eye"])
             rms = d.get("rms")
             return cls(
@@ -274,8 +265,6 @@ class Camera:
         return cls.from_dict(d, str(path))
 
     def replace(self, **changes) -> Camera:
-        from dataclasses import replace
-
         return replace(self, **changes)
 
 
@@ -306,10 +295,6 @@ def calibrate(
         If there are no photos, or fewer than 3 with a full chessboard (the message says why
         each photo was skipped).
     """
-    import cv2
-
-    from ..io.images import list_images, read_image
-
     if isinstance(images, (str, os.PathLike)):
         folder = Path(images)
         if not folder.is_dir():

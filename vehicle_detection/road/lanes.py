@@ -1,7 +1,6 @@
-"""Lane finding, and distances on the road plane.
+"""Lane finding on the road plane.
 
-The steps, all pure functions except the small stateful :class:`LaneTracker` and
-:class:`DistanceTracker`:
+The steps, all pure functions except the small stateful :class:`LaneTracker`:
 
 1. :func:`birds_eye_from_straight`: the perspective transform to a bird's-eye view, derived from
    (undistorted) frames of a straight road. In each frame the two lane lines are found as
@@ -24,9 +23,9 @@ The steps, all pure functions except the small stateful :class:`LaneTracker` and
    good fit.
 5. :func:`lane_measures`: radius of curvature and the vehicle's offset from the lane centre in
    metres (positive: the car is right of centre).
-6. :meth:`BirdsEye.ground_distance` and :class:`DistanceTracker`: a box's distance ahead from
-   the bottom centre of the box through the ground-plane homography, and the relative speed
-   of each track from its successive distances (least-squares slope over the last frames).
+6. :meth:`BirdsEye.ground_distance`: a ground point's distance ahead through the ground-plane
+   homography (:class:`~vehicle_detection.road.distance.DistanceTracker` measures the boxes
+   with it).
 """
 
 from __future__ import annotations
@@ -35,6 +34,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import cv2
 import numpy as np
 
 from ..errors import InputError
@@ -50,7 +50,6 @@ __all__ = [
     "lane_measures",
     "Lane",
     "LaneTracker",
-    "DistanceTracker",
     "draw_lane",
     "lane_row",
     "LANE_WIDTH_M",
@@ -98,19 +97,13 @@ class BirdsEye:
 
     @cached_property
     def M(self) -> np.ndarray:
-        import cv2
-
         return cv2.getPerspectiveTransform(self.src, self.dst)
 
     @cached_property
     def Minv(self) -> np.ndarray:
-        import cv2
-
         return cv2.getPerspectiveTransform(self.dst, self.src)
 
     def warp(self, image: np.ndarray) -> np.ndarray:
-        import cv2
-
         return cv2.warpPerspective(image, self.M, self.warped_size, flags=cv2.INTER_LINEAR)
 
     def to_warped(self, points) -> np.ndarray:
@@ -162,8 +155,6 @@ def lane_binary(rgb: np.ndarray, *, s_thresh=(170, 255), sx_thresh=(20, 100), wh
     HLS saturation in ``s_thresh`` (yellow and white paint), or lightness > ``white`` in all
     three RGB channels, or the scaled Sobel x of the lightness in ``sx_thresh``.
     """
-    import cv2
-
     rgb = np.ascontiguousarray(rgb)
     hls = cv2.cvtColor(rgb, cv2.COLOR_RGB2HLS)
     lum = np.ascontiguousarray(hls[..., 1])
@@ -181,8 +172,6 @@ def lane_binary(rgb: np.ndarray, *, s_thresh=(170, 255), sx_thresh=(20, 100), wh
 
 def _straight_lines(rgb: np.ndarray, top_row: int) -> tuple[np.ndarray, np.ndarray]:
     """``(a, b)`` of ``x = a*y + b`` for the left and right lane lines of a straight-road frame."""
-    import cv2
-
     h, w = rgb.shape[:2]
     binary = lane_binary(rgb, sx_thresh=(40, 255))
     mask = np.zeros((h, w), np.uint8)
@@ -417,15 +406,13 @@ class LaneTracker:
 
 
 def lane_row(frame: int, lane: Lane | None) -> tuple[int, float | None, float | None]:
-    """The row of frame ``frame`` in the lanes CSV (:func:`~vehicle_detection.tables.write_lanes_csv`):
+    """The row of frame ``frame`` in the lanes CSV (:func:`~vehicle_detection.io.write_lanes_csv`):
     ``(frame, radius_m, offset_m)``, with None for both when no lane was found."""
     return (frame, lane.radius_m, lane.offset_m) if lane is not None else (frame, None, None)
 
 
 def draw_lane(image: np.ndarray, lane: Lane | None, birds_eye: BirdsEye, *, color=(0, 200, 255), alpha: float = 0.3) -> np.ndarray:
     """The lane area filled on a copy of the (undistorted) frame, with radius and offset written."""
-    import cv2
-
     out = np.array(image, copy=True)
     if lane is None:
         cv2.putText(out, "lane: not found", (30, 50), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 255, 255), 2, cv2.LINE_AA)
@@ -447,59 +434,3 @@ def draw_lane(image: np.ndarray, lane: Lane | None, birds_eye: BirdsEye, *, colo
     for i, text in enumerate((f"radius of curvature: {radius}", f"{abs(lane.offset_m):.2f} m {side} of lane centre")):
         cv2.putText(out, text, (30, 50 + 40 * i), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 255, 255), 2, cv2.LINE_AA)
     return out
-
-
-# --- distances and relative speeds -------------------------------------------------------------
-
-
-@dataclass
-class DistanceTracker:
-    """Distance ahead and relative speed of each tracked vehicle.
-
-    ``update(detections)`` adds ``distance_m`` (from the bottom centre of the box, through
-    :meth:`BirdsEye.ground_distance`; NaN beyond ``max_distance_m`` or above the horizon) and
-    ``relative_speed_mps`` (the least-squares slope of the track's distances over its last
-    ``window`` frames, default one second, times ``fps``; positive: pulling away; NaN until
-    ``min_points`` frames, default half the window, and for untracked boxes) to
-    ``detections.data``.
-    """
-
-    birds_eye: BirdsEye
-    fps: float
-    window: int | None = None
-    min_points: int | None = None
-    max_distance_m: float = 150.0
-    _history: dict = field(default_factory=dict, repr=False)
-
-    def __post_init__(self) -> None:
-        if self.window is None:  # one second of frames: box bottoms jitter by a pixel or two
-            self.window = max(3, int(round(self.fps)))
-        if self.min_points is None:
-            self.min_points = max(2, self.window // 2)
-
-    def distances(self, xyxy: np.ndarray) -> np.ndarray:
-        xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
-        bottom = np.c_[(xyxy[:, 0] + xyxy[:, 2]) / 2, xyxy[:, 3]]
-        d = self.birds_eye.ground_distance(bottom)
-        d[~(d <= self.max_distance_m)] = np.nan
-        return d
-
-    def update(self, detections):
-        d = self.distances(detections.xyxy)
-        speed = np.full(len(d), np.nan)
-        if detections.track_id is not None:
-            for i, (t, f) in enumerate(zip(detections.track_id.tolist(), detections.frame.tolist())):
-                if t < 0:
-                    continue
-                hist = self._history.setdefault(t, deque(maxlen=self.window))
-                if np.isfinite(d[i]):
-                    hist.append((f, d[i]))
-                if len(hist) >= self.min_points:
-                    fr, dist = np.array(hist).T
-                    if np.ptp(fr) > 0:
-                        speed[i] = np.polyfit(fr, dist, 1)[0] * self.fps
-            live = set(detections.track_id.tolist())
-            for t in [t for t in self._history if t not in live]:
-                if detections.frame.size and self._history[t] and detections.frame.max() - self._history[t][-1][0] > self.window:
-                    del self._history[t]
-        return detections.replace(data={**detections.data, "distance_m": d, "relative_speed_mps": speed})

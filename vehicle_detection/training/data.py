@@ -26,11 +26,12 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import math
 import os
 import re
 import zipfile
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +41,7 @@ from ..errors import InputError
 from ..io.images import decode_image
 
 __all__ = [
+    "list_extra_negatives",
     "DATA_ENV",
     "CLASSES",
     "MIN_IMAGES_PER_CLASS",
@@ -235,13 +237,14 @@ def _groups(key_sets: list[list[str]], digests: np.ndarray) -> np.ndarray:
     return np.array([find(g) for g in groups], dtype=np.int64)
 
 
-def _list_extra(folder: Path) -> list[tuple[str, Path]]:
+def list_extra_negatives(folder: str | os.PathLike) -> list[tuple[str, Path]]:
     """``(source, file)`` of every PNG of an extra negatives folder, sorted by source and number.
 
     ``folder`` is either laid out like the data folder (PNGs under ``folder/non-vehicles/<source>/``)
     or a folder of PNGs itself (source ``non-vehicles/<its name>``, subfolders included). Hidden
     files and folders (such as an unfinished ``.NAME.XXXX.partial``) are skipped.
     """
+    folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: extra negatives folder not found")
     root = folder / "non-vehicles" if (folder / "non-vehicles").is_dir() else folder
@@ -320,7 +323,7 @@ def _load(root: Path, stack: contextlib.ExitStack, drop_duplicates: bool, track_
     extra_sources: dict[str, Path] = {}
     for folder in extra_negatives:
         folder = Path(folder)
-        found = _list_extra(folder)
+        found = list_extra_negatives(folder)
         if not found:
             raise InputError(f"{folder}: no PNG images in this extra negatives folder")
         for source, path in found:
@@ -387,8 +390,6 @@ def check_split_sizes(labels, groups, *, test_size: float = 0.2, name: str = "da
     InputError
         Naming ``name``, how many images and groups each class has, and how many are needed.
     """
-    import math
-
     labels, groups = np.asarray(labels), np.asarray(groups)
     n = len(labels)
     n_groups = len(np.unique(groups))

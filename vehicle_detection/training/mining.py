@@ -35,6 +35,7 @@ neighbours, which look alike) easy for the retrained model.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import re
@@ -47,13 +48,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
-from ..io._files import PARTIAL_SUFFIX
-from .data import MINED_NAME, Dataset
 from ..detections import Detections
+from ..detector import Detector
 from ..errors import InputError, OutputError
-from ..metrics.detection import Annotations, FrameLabels
 from ..geometry import box_area, box_intersection, box_iou, match_boxes
+from ..io import PARTIAL_SUFFIX, refuse_inputs, umask
+from ..io.images import list_images, read_image
+from ..io.video import read_frames
+from ..metrics.detection import Annotations, FrameLabels
+from ..refine import crop_windows, jittered_windows, working_frame
+from ..search import window_patches
+from .data import MINED_NAME, Dataset
 
 __all__ = [
     "labelled_frames",
@@ -235,9 +242,6 @@ def negative_mask(
 
 def _frames_of(path: Path, labels: Annotations | None = None) -> Iterator[tuple[int, Callable[[], np.ndarray]]]:
     """``(index, load)`` per frame of a video or image folder; ``load()`` gives the RGB frame."""
-    from ..io.images import list_images, read_image
-    from ..io.video import read_frames
-
     if path.is_dir():
         files = list_images(path)
         for i, lab in (labels.frames.items() if labels is not None else ()):
@@ -278,8 +282,6 @@ def vehicle_patches(
     -------
     ndarray of uint8, shape (len(cars) * per_car, side, side, 3)
     """
-    from ..refine import crop_windows, jittered_windows, working_frame
-
     work, f = working_frame(frame, reference_height)
     cars = np.asarray(cars, np.float64).reshape(-1, 4) * f
     if not len(cars):
@@ -361,9 +363,6 @@ def mine_negatives(
     -------
     MinedNegatives
     """
-    from ..detector import Detector
-    from ..search import window_patches
-
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise ValueError(f"every must be a whole number >= 1; got {every!r}")
     if max_gap < 0 or dedupe_frames < 0:
@@ -379,8 +378,6 @@ def mine_negatives(
         if s.labels is None and regions is None:
             raise InputError(f"{s.path}: no labels for this input; give its annotation file or --negative-region")
     if threshold is not None:
-        import dataclasses
-
         plan = dataclasses.replace(detector.config.plan, threshold=float(threshold))
         detector = Detector(detector.model, detector.config.replace(plan=plan))
     model, plan = detector.model, detector.config.plan
@@ -442,14 +439,6 @@ def mine_negatives(
 # --- writing --------------------------------------------------------------------------------------
 
 
-def _refuse_inputs(dest: Path, inputs: Iterable[str | os.PathLike]) -> None:
-    d = Path(os.path.abspath(dest))
-    for src in inputs:
-        s = Path(os.path.abspath(src))
-        if s == d or d in s.parents or s in d.parents:
-            raise OutputError(f"{dest}: output folder would overwrite or lie inside the input {src}; choose another --out")
-
-
 def write_negatives(
     mined: MinedNegatives,
     out_dir: str | os.PathLike,
@@ -485,12 +474,10 @@ def write_negatives(
     OutputError
         If the folder exists and ``overwrite`` is false, or it cannot be written.
     """
-    from PIL import Image
-
     if not _SOURCE_NAME.fullmatch(name):
         raise OutputError(f"{name!r}: the folder name must be letters, digits, '.', '_' or '-' (no path)")
     dest = Path(out_dir) / "non-vehicles" / name
-    _refuse_inputs(dest, inputs)
+    refuse_inputs(dest, inputs)
     if dest.exists() and not dest.is_dir():
         raise OutputError(f"{dest}: exists and is not a folder")
     if dest.exists() and not overwrite:
@@ -504,7 +491,7 @@ def write_negatives(
     try:
         for fname, patch in zip(mined.file_names(), mined.patches):
             Image.fromarray(patch).save(tmp / fname, format="PNG")
-        os.chmod(tmp, 0o777 & ~_umask())
+        os.chmod(tmp, 0o777 & ~umask())
         if dest.exists():
             if not overwrite:
                 raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
@@ -520,9 +507,3 @@ def write_negatives(
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     return dest
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

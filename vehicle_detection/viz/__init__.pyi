@@ -1,0 +1,3 @@
+# The names of vehicle_detection.viz, loaded on first use (lazy_loader.attach_stub reads this file).
+from . import plots
+from .drawing import add_caption, draw_boxes, draw_detections, failure_sheet, failure_tile, tile_view
