@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.mining (hard-negative mining), search.window_patches, extra
+"""Tests of vehicle_detection.training.mining (hard-negative mining), search.window_patches, extra
 negatives in load_dataset, and the ``mine-negatives`` / ``train --extra-negatives`` commands."""
 
 from __future__ import annotations
@@ -19,13 +19,13 @@ from PIL import Image
 from vehicle_detection.classifier import VehicleClassifier
 from vehicle_detection.cli import main
 from vehicle_detection.config import DetectorConfig
-from vehicle_detection.data import load_dataset
+from vehicle_detection.training.data import load_dataset
 from vehicle_detection.detections import Detections
 from vehicle_detection.detector import Detector
 from vehicle_detection.errors import InputError, OutputError
-from vehicle_detection.evaluate import Annotations, FrameLabels
-from vehicle_detection.images import read_image, write_image
-from vehicle_detection.mining import (
+from vehicle_detection.metrics.detection import Annotations, FrameLabels
+from vehicle_detection.io.images import read_image, write_image
+from vehicle_detection.training.mining import (
     MinedNegatives,
     MiningSource,
     labels_at,

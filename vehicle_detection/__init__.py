@@ -15,11 +15,11 @@ subpackage's (``vd.io``, ``vd.road``, ``vd.metrics``, ``vd.training``, ``vd.viz`
 
 import lazy_loader as _lazy
 
-from . import _moved
+from . import deprecation
 
 __version__ = "0.2.0"
 
 __getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)
 __all__ = ["__version__", *__all__]
 
-_moved.install()  # the module paths of 0.2 (vehicle_detection.batch, ...) still import, with a warning
+deprecation.install()  # the earlier module paths (vehicle_detection.batch, ...) still import, with a warning

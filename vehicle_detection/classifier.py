@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, _moved
+from . import __version__, deprecation
 from .config import DetectorConfig
 from .errors import ModelError
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
@@ -390,4 +390,4 @@ def load_default_model() -> VehicleClassifier:
 def __getattr__(name: str):
     """``train``, ``sweep``, ``sweep_configs``, ``split_indices`` and ``with_box_refinement`` moved
     to :mod:`vehicle_detection.training.fit`; still here for one release, with a warning."""
-    return _moved.moved_attribute(__name__, name)
+    return deprecation.moved_attribute(__name__, name)

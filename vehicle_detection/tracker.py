@@ -356,7 +356,7 @@ class Tracker:
     **Association.** Candidates and live tracks are matched one to one among the pairs with
     IoU >= ``match_iou``; the matching has the most pairs and, among those, the largest total
     IoU (:func:`scipy.optimize.linear_sum_assignment`), as in
-    :func:`vehicle_detection.evaluate.match_frame`.
+    :func:`vehicle_detection.metrics.detection.match_frame`.
 
     **Life cycle.** A matched track takes the blob's box into its moving average, ``hits += 1``,
     ``misses = 0``, and is confirmed once ``hits >= min_hits``. An unmatched track keeps its

@@ -32,13 +32,12 @@ _BATCH_ONLY = ("skip_existing", "table", "scheduler", "chunk_frames")
 
 
 def run(args) -> int:
+    batch = _is_batch(args)
+    if batch and (args.out or args.boxes or args.lanes_csv):
+        raise UsageError("--out, --boxes and --lanes-csv name the outputs of one input; in a batch use --out-dir "
+                         "(default names) and --format lanes")
     options = _options(args)
-    if _is_batch(args):
-        if args.out or args.boxes or args.lanes_csv:
-            raise UsageError("--out, --boxes and --lanes-csv name the outputs of one input; in a batch use --out-dir "
-                             "(default names) and --format lanes")
-        return _detect_many(args, options)
-    return _detect_one(args, options)
+    return _detect_many(args, options) if batch else _detect_one(args, options)
 
 
 def _is_batch(args) -> bool:

@@ -83,7 +83,7 @@ def check_frame_shape(height: int, width: int, name: str = "image", *, reference
     The search scales every frame to ``reference_height`` pixels high keeping its shape, so
     memory grows with the width-to-height ratio, not with the file's size: a 100000x1 PNG would
     become 72 million x 720 pixels. Call this before decoding (images) or before the first frame
-    (videos: :func:`vehicle_detection.video.probe_video` gives the size).
+    (videos: :func:`vehicle_detection.io.video.probe_video` gives the size).
 
     Parameters
     ----------
@@ -391,7 +391,7 @@ def write_image(path: str | os.PathLike, image, *, overwrite: bool = False, inpu
         If ``image`` is not an image array (see :func:`as_rgb_uint8`).
     OutputError
         If the extension is not a format Pillow can write (:func:`check_image_output`), the
-        output is refused (:func:`vehicle_detection._files.check_output_path`), or writing
+        output is refused (:func:`vehicle_detection.io.check_output_path`), or writing
         fails (disk full, ...); the message names ``path``.
     """
     rgb = as_rgb_uint8(image, name=str(path))

@@ -590,7 +590,7 @@ class VideoWriter:
     ----------
     path : path-like
         Output file. It appears only once the video is complete (see
-        :func:`vehicle_detection._files.atomic_output`). The container is always MP4, whatever
+        :func:`vehicle_detection.io.atomic_output`). The container is always MP4, whatever
         the suffix.
     fps : float or Fraction
         Frame rate of the output, > 0 (for example :attr:`VideoInfo.fps` of the input). It is

@@ -23,7 +23,7 @@ Cameras and failures
 --------------------
 Several labels files are pooled per camera (:func:`pool_by_camera`): the file's ``camera`` key,
 else its frame size (:func:`camera_name`). :func:`find_failures` lists what a contact sheet shows
-(:mod:`vehicle_detection.reporting`): misses and false positives at IoU 0.5, and loose matches
+(:mod:`vehicle_detection.metrics.reporting`): misses and false positives at IoU 0.5, and loose matches
 (matched at 0.5 with IoU below 0.7).
 """
 
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..io._files import read_text
+from ..io import read_text
 from ..detections import Detections
 from ..errors import InputError
 from ..geometry import MAX_COORD, as_boxes, box_area, box_intersection, box_iou, match_boxes
@@ -527,7 +527,7 @@ def evaluate_detections(
     ----------
     detections : Detections, or mapping of int to array_like of shape (k, 4)
         Detected boxes with their 0-based decoded frame indexes (e.g. from
-        :func:`vehicle_detection.tables.read_boxes_csv`), or boxes by frame index. Only
+        :func:`vehicle_detection.io.tables.read_boxes_csv`), or boxes by frame index. Only
         annotated frames are scored: an
         annotated frame missing here counts as a frame with no detections, and frames that are not
         annotated are skipped.
@@ -633,7 +633,7 @@ def average_precision(
 
 def tracking_frames(detections: Detections, annotations: Annotations, *, ignore_overlap: float = 0.5) -> list:
     """The labelled frames as ``(gt_ids, gt_boxes, tracker_ids, tracker_boxes)`` for
-    :func:`~vehicle_detection.tracking_metrics.tracking_scores`.
+    :func:`~vehicle_detection.metrics.tracking.tracking_scores`.
 
     Detections that match no car at IoU >= 0.5 and lie in an ignore region are left out, as
     :func:`match_frame` leaves them out of the false positives.

@@ -6,7 +6,7 @@
   ``all`` when there are several cameras;
 * ``failures_<camera>.png``: one contact sheet per camera, a 256-colour PNG
   (:func:`camera_sheet`), with a tile for every miss, false positive and loose match
-  (:func:`~vehicle_detection.evaluate.find_failures`) of the camera's labels files, at most
+  (:func:`~vehicle_detection.metrics.detection.find_failures`) of the camera's labels files, at most
   ``limit`` tiles (:func:`select_failures`: misses and false positives first).
 
 The frames of the tiles are read again from the labelled video or images, after scoring: a video
@@ -29,7 +29,7 @@ from PIL import Image
 
 from ..detections import Detections
 from ..errors import InputError, OutputError
-from ..io._files import atomic_output, output_batch
+from ..io import atomic_output, output_batch
 from ..io.images import list_images, read_image
 from ..io.video import probe_video, read_frames
 from ..viz.drawing import SHEET_COLORS, failure_sheet, failure_tile
@@ -193,7 +193,7 @@ def select_failures(failures: Sequence[tuple[int, Failure]], limit: int = MAX_TI
     Returns
     -------
     list of (int, Failure)
-        Ordered by kind (:data:`~vehicle_detection.evaluate.FAILURE_KINDS`), then file, then frame.
+        Ordered by kind (:data:`~vehicle_detection.metrics.detection.FAILURE_KINDS`), then file, then frame.
     """
     groups = [sorted((p for p in failures if p[1].kind == k), key=lambda p: (p[0], p[1].frame)) for k in FAILURE_KINDS]
     shares = _shares([len(g) for g in groups[:2]], limit)
@@ -245,7 +245,7 @@ def camera_sheet(camera: str, items: Sequence[ReportSource], *, limit: int = MAX
     Returns
     -------
     sheet : ndarray of uint8, shape (H, W, 3)
-        RGB (:func:`~vehicle_detection.drawing.failure_sheet`).
+        RGB (:func:`~vehicle_detection.viz.drawing.failure_sheet`).
     counts : dict of str to int
         ``miss``, ``false positive`` and ``loose`` (all found), ``shown`` and ``left_out``.
     """
@@ -297,9 +297,9 @@ def camera_rows(cameras: Mapping[str, Mapping[str, Any]], overall: Mapping[str, 
     Parameters
     ----------
     cameras : mapping of str to mapping
-        From :func:`~vehicle_detection.evaluate.pool_by_camera`.
+        From :func:`~vehicle_detection.metrics.detection.pool_by_camera`.
     overall : mapping, optional
-        From :func:`~vehicle_detection.evaluate.pool_reports` over every file.
+        From :func:`~vehicle_detection.metrics.detection.pool_reports` over every file.
 
     Returns
     -------
@@ -402,7 +402,7 @@ def write_evaluation_report(
     """Write ``cameras.md``, ``cameras.csv`` and one ``failures_<camera>.png`` per camera, together.
 
     The files are written atomically and renamed into place together at the end
-    (:func:`~vehicle_detection._files.output_batch`): a failed or interrupted run leaves the
+    (:func:`~vehicle_detection.io.output_batch`): a failed or interrupted run leaves the
     folder as it was.
 
     Parameters
@@ -412,9 +412,9 @@ def write_evaluation_report(
     items : sequence of ReportSource
         Every labels file scored, with its camera.
     cameras : mapping of str to mapping
-        From :func:`~vehicle_detection.evaluate.pool_by_camera`.
+        From :func:`~vehicle_detection.metrics.detection.pool_by_camera`.
     overall : mapping
-        From :func:`~vehicle_detection.evaluate.pool_reports` over every file; the tables' row
+        From :func:`~vehicle_detection.metrics.detection.pool_reports` over every file; the tables' row
         ``all`` when there are several cameras.
     overwrite : bool
         Replace existing files of these names.

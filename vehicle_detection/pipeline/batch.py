@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._moved import old_keywords
+from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, UsageError, VehicleDetectionError, one_line

@@ -117,7 +117,7 @@ class Camera:
     per_image_rms : dict of str to float
         RMS reprojection error of each photo used, pixels (outliers show here).
     birds_eye : BirdsEye or None
-        The perspective transform to the road plane (:mod:`vehicle_detection.lanes`), if known.
+        The perspective transform to the road plane (:mod:`vehicle_detection.road.lanes`), if known.
     """
 
     image_size: tuple[int, int]

@@ -3,7 +3,7 @@
 :func:`load_dataset` reads the two Udacity archives (``vehicles.zip``, ``non-vehicles.zip``)
 or their extracted folders from a data folder, chosen in this order: the ``data_dir`` argument
 (``--data-dir`` on the command line), the ``VEHICLE_DETECTION_DATA`` environment variable,
-``./data``. :func:`vehicle_detection.download.download_archives` fetches them.
+``./data``. :func:`vehicle_detection.training.download.download_archives` fetches them.
 
 Honest splits need groups. The GTI folders are time series: consecutive file numbers are the
 same car (or the same stretch of road) a few frames apart, so a random split puts near copies on
@@ -15,7 +15,7 @@ byte-identical files, so a grouped split (:class:`sklearn.model_selection.GroupS
 never has the same picture, and rarely the same car, on both sides.
 
 Extra negatives (``extra_negatives``, e.g. the hard negatives of
-:func:`vehicle_detection.mining.write_negatives`) are added after the archives' patches, each
+:func:`vehicle_detection.training.mining.write_negatives`) are added after the archives' patches, each
 folder as its own source with its own groups: mined patches (named
 ``<input>__f<frame>__...png``) are grouped by input and blocks of ``track_length`` frames, other
 PNGs by blocks of ``track_length`` file numbers, and no extra group is shared with the archives
@@ -188,7 +188,7 @@ def find_duplicates(digests: np.ndarray) -> list[np.ndarray]:
     return [np.sort(g) for g in splits if len(g) > 1]
 
 
-#: File names of mined patches (:mod:`~vehicle_detection.mining`):
+#: File names of mined patches (:mod:`~vehicle_detection.training.mining`):
 #: ``<input>__f<frame>__s<scale>_<x1>_<y1>_<x2>_<y2>.png``.
 MINED_NAME = re.compile(r"^(?P<stem>.+)__f(?P<frame>\d+)__s(?P<scale>\d+)_(?P<box>\d+_\d+_\d+_\d+)\.png$")
 

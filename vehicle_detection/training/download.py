@@ -15,7 +15,7 @@ numbers (see :data:`ARCHIVES`). A known md5 can still be given to :func:`downloa
 
 Examples
 --------
->>> from vehicle_detection.download import download_archives
+>>> from vehicle_detection.training.download import download_archives
 >>> paths = download_archives("data")  # doctest: +SKIP
 >>> paths["vehicles"]  # doctest: +SKIP
 PosixPath('data/vehicles.zip')

@@ -79,7 +79,7 @@ def train(
 
     Two held-out evaluations are run (in parallel with ``n_jobs``): a randomised stratified
     80/20 split, and a grouped 80/20 split in which no group of
-    :attr:`~vehicle_detection.data.Dataset.groups` (GTI time-series blocks, byte-identical
+    :attr:`~vehicle_detection.training.data.Dataset.groups` (GTI time-series blocks, byte-identical
     files) is on both sides. The final model is then fitted on all patches.
 
     Returns

@@ -87,7 +87,7 @@ class MiningSource:
     path : path-like
         Video file, or folder of images (frames are the images in sorted name order).
     labels : Annotations, optional
-        Labels of this input (frame keys as in :func:`~vehicle_detection.evaluate.load_annotations`).
+        Labels of this input (frame keys as in :func:`~vehicle_detection.metrics.detection.load_annotations`).
     """
 
     path: Path

@@ -308,7 +308,7 @@ def failure_tile(
     image : ndarray of uint8, shape (H, W, 3)
         The labelled RGB frame.
     failure : Failure
-        From :func:`vehicle_detection.evaluate.find_failures`: its ``box`` and ``partner`` set
+        From :func:`vehicle_detection.metrics.detection.find_failures`: its ``box`` and ``partner`` set
         the region shown, its ``kind`` and ``iou`` the caption's second line.
     cars, ignore, reported : array_like, shape (n, 4)
         The frame's labelled cars (blue), ignore regions (magenta, thin) and reported boxes

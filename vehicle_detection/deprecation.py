@@ -110,9 +110,10 @@ class _Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 def install() -> None:
-    """Answer the old module paths (once per process)."""
+    """Answer the old module paths (once per process), before any other finder: a file of the
+    old layout left on the path (an older install) must not answer them."""
     if not any(isinstance(f, _Finder) for f in sys.meta_path):
-        sys.meta_path.append(_Finder())
+        sys.meta_path.insert(0, _Finder())
 
 
 def old_keywords(names: tuple[str, ...], convert: Callable[[dict], dict]):
