@@ -43,7 +43,7 @@ from .metrics.tracking import tracking_scores
 # Training
 from .training.data import find_duplicates, load_dataset
 from .training.fit import split_indices, sweep, sweep_configs, train
-from .training.mining import MiningSource, mine_negatives, write_negatives
+from .training.mining import MiningOptions, MiningSource, mine_negatives, write_negatives
 
 # Drawing
 from .viz.drawing import draw_boxes, draw_detections

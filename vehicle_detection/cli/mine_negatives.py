@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import InputError, OutputError, UsageError
 from ..io import refuse_inputs
 from ..metrics.detection import load_annotations
-from ..training.mining import MiningSource, mine_negatives, write_negatives
+from ..training.mining import MiningOptions, MiningSource, mine_negatives, write_negatives
 from .options import load_detector
 
 __all__ = ["run"]
@@ -93,11 +93,11 @@ def run(args) -> int:
         if index % 50 == 0:
             print(f"{name}: frame {index}", file=sys.stderr, flush=True)
 
-    mined = mine_negatives(
-        sources, detector, every=args.every, frames=frames, threshold=args.threshold, negative_regions=regions,
-        max_gap=args.max_gap, max_iou=args.max_iou, max_car_cover=args.max_car_cover, dedupe_iou=args.dedupe_iou,
-        dedupe_frames=args.dedupe_frames, progress=None if args.no_progress else progress,
+    options = MiningOptions(
+        every=args.every, frames=frames, threshold=args.threshold, negative_regions=regions, max_gap=args.max_gap,
+        max_iou=args.max_iou, max_car_cover=args.max_car_cover, dedupe_iou=args.dedupe_iou, dedupe_frames=args.dedupe_frames,
     )
+    mined = mine_negatives(sources, detector, options, progress=None if args.no_progress else progress)
     for name, st in mined.stats.items():
         print(
             f"{name}: {st['frames']} frames searched ({st['skipped_frames']} skipped: no labels within --max-gap), "

@@ -51,6 +51,7 @@ import numpy as np
 from PIL import Image
 
 from ..detections import Detections
+from ..deprecation import old_keywords
 from ..detector import Detector
 from ..errors import InputError, OutputError
 from ..geometry import box_area, box_intersection, box_iou, match_boxes
@@ -67,6 +68,7 @@ __all__ = [
     "vehicle_patches",
     "labelled_dataset",
     "MiningSource",
+    "MiningOptions",
     "MinedNegatives",
     "labels_at",
     "negative_mask",
@@ -313,35 +315,18 @@ def _input_name(path: Path) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "input"
 
 
-def mine_negatives(
-    sources: Sequence[MiningSource],
-    detector=None,
-    *,
-    every: int = 1,
-    frames: Iterable[int] | None = None,
-    threshold: float | None = None,
-    negative_regions: np.ndarray | None = None,
-    max_gap: int = 10,
-    max_iou: float = 0.1,
-    max_car_cover: float = 0.1,
-    max_ignore_overlap: float = 0.5,
-    dedupe_iou: float = 0.5,
-    dedupe_frames: int = 5,
-    progress: Callable[[str, int], None] | None = None,
-) -> MinedNegatives:
-    """Cut the hot windows that are certainly not vehicles out of videos or image folders.
+@dataclass(frozen=True)
+class MiningOptions:
+    """Which frames are searched, which hot windows are taken as negatives, and which are dropped as
+    near duplicates.
 
     Parameters
     ----------
-    sources : sequence of MiningSource
-        Inputs, each with its labels or none. An input without labels needs ``negative_regions``.
-    detector : Detector, optional
-        Supplies the hot windows (:meth:`~vehicle_detection.detector.Detector.windows`, all
-        scales, margin above its plan's threshold); the embedded model's by default.
     every : int
         Search every ``every``-th frame (frame index divisible by it).
     frames : iterable of int, optional
         Only these frame indexes (of every input); all by default. Leave out frames you score.
+        Stored as a frozenset.
     threshold : float, optional
         SVM margin above which a window is taken; the detector's own (its plan's threshold, the
         windows it calls hot) by default. A lower one also takes the windows inside the margin
@@ -356,84 +341,153 @@ def mine_negatives(
         A window with at least this IoU with a kept window of the same scale, in its frame or the
         ``dedupe_frames`` frames before, is dropped (1.0 or more keeps every window).
     dedupe_frames : int
+    """
+
+    every: int = 1
+    frames: Iterable[int] | None = None
+    threshold: float | None = None
+    negative_regions: np.ndarray | None = field(default=None, compare=False)
+    max_gap: int = 10
+    max_iou: float = 0.1
+    max_car_cover: float = 0.1
+    max_ignore_overlap: float = 0.5
+    dedupe_iou: float = 0.5
+    dedupe_frames: int = 5
+
+    def __post_init__(self) -> None:
+        every = self.every
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise ValueError(f"every must be a whole number >= 1; got {every!r}")
+        if self.max_gap < 0 or self.dedupe_frames < 0:
+            raise ValueError("max_gap and dedupe_frames must be >= 0")
+        if self.frames is not None:
+            object.__setattr__(self, "frames", frozenset(int(f) for f in self.frames))
+        if self.negative_regions is not None:
+            regions = np.asarray(self.negative_regions, dtype=np.int64).reshape(-1, 4)
+            regions.setflags(write=False)
+            object.__setattr__(self, "negative_regions", regions)
+
+    def searches(self, index: int) -> bool:
+        """Whether frame ``index`` is searched."""
+        return not index % self.every and (self.frames is None or index in self.frames)
+
+
+def _legacy(kwargs: dict) -> dict:
+    """The earlier keywords (``every``, ``frames``, ``dedupe_iou``, ...) as a :class:`MiningOptions`."""
+    fields = {k: kwargs.pop(k) for k in list(kwargs) if k in MiningOptions.__dataclass_fields__}
+    kwargs["options"] = dataclasses.replace(kwargs.get("options") or MiningOptions(), **fields)
+    return kwargs
+
+
+@old_keywords(tuple(MiningOptions.__dataclass_fields__), _legacy)
+def mine_negatives(
+    sources: Sequence[MiningSource],
+    detector: Detector | None = None,
+    options: MiningOptions | None = None,
+    *,
+    progress: Callable[[str, int], None] | None = None,
+) -> MinedNegatives:
+    """Cut the hot windows that are certainly not vehicles out of videos or image folders.
+
+    Parameters
+    ----------
+    sources : sequence of MiningSource
+        Inputs, each with its labels or none. An input without labels needs
+        ``options.negative_regions``.
+    detector : Detector, optional
+        Supplies the hot windows (:meth:`~vehicle_detection.detector.Detector.windows`, all
+        scales, margin above its plan's threshold); the embedded model's by default.
+    options : MiningOptions, optional
+        Frames, threshold, regions, distances to the cars, near duplicates.
     progress : callable, optional
         Called as ``progress(input_name, frame_index)`` after each searched frame.
 
     Returns
     -------
     MinedNegatives
+
+    Notes
+    -----
+    The earlier keywords (``every=``, ``frames=``, ``dedupe_iou=``, ...: the fields of
+    :class:`MiningOptions`) still work, with a :class:`DeprecationWarning`.
     """
-    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
-        raise ValueError(f"every must be a whole number >= 1; got {every!r}")
-    if max_gap < 0 or dedupe_frames < 0:
-        raise ValueError("max_gap and dedupe_frames must be >= 0")
+    options = options or MiningOptions()
     detector = Detector() if detector is None else detector
-    regions = None if negative_regions is None else np.asarray(negative_regions, dtype=np.int64).reshape(-1, 4)
-    wanted = None if frames is None else {int(f) for f in frames}
     names = [_input_name(s.path) for s in sources]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise InputError(f"two inputs share the name {dupes[0]!r}; mine them in separate runs (or rename one)")
     for s in sources:
-        if s.labels is None and regions is None:
+        if s.labels is None and options.negative_regions is None:
             raise InputError(f"{s.path}: no labels for this input; give its annotation file or --negative-region")
-    if threshold is not None:
-        plan = dataclasses.replace(detector.config.plan, threshold=float(threshold))
+    if options.threshold is not None:
+        plan = dataclasses.replace(detector.config.plan, threshold=float(options.threshold))
         detector = Detector(detector.model, detector.config.replace(plan=plan))
-    model, plan = detector.model, detector.config.plan
-    patches, windows, inputs, seen, stats = [], [], [], set(), {}
-    for source, name in zip(sources, names):
-        st = stats[name] = {"frames": 0, "skipped_frames": 0, "hot": 0, "far": 0, "duplicates": 0, "kept": 0}
-        recent: deque = deque()  # (frame, boxes (k, 4), scale_index (k,)) of kept windows
-        for index, load in _frames_of(source.path, source.labels):
-            if index % every or (wanted is not None and index not in wanted):
-                continue
-            labels = None
-            if source.labels is not None:
-                labels = labels_at(source.labels, index, max_gap=max_gap)
-                if labels is None:
-                    st["skipped_frames"] += 1
-                    continue
-            frame = load()
-            wins = detector.windows(frame)
-            st["frames"] += 1
-            st["hot"] += len(wins)
-            wins = wins[negative_mask(wins.xyxy, labels, regions, max_iou=max_iou, max_car_cover=max_car_cover,
-                                      max_ignore_overlap=max_ignore_overlap)]  # fmt: skip
-            st["far"] += len(wins)
-            wins = wins[np.argsort(-wins.score, kind="stable")]  # hardest first
-            while recent and recent[0][0] < index - dedupe_frames:
-                recent.popleft()
-            keep = np.zeros(len(wins), bool)
-            kept_boxes = [(b, k) for _, bs, ks in recent for b, k in zip(bs, ks)]
-            crops = window_patches(frame, wins, model, plan)
-            for j in range(len(wins)):
-                box, k = wins.xyxy[j], int(wins.data["scale_index"][j])
-                same = [b for b, kk in kept_boxes if kk == k]
-                if same and box_iou(box[None], np.array(same)).max() >= dedupe_iou:
-                    continue
-                digest = hashlib.sha1(crops[j].tobytes()).hexdigest()
-                if digest in seen:
-                    continue
-                seen.add(digest)
-                keep[j] = True
-                kept_boxes.append((box, k))
-            st["duplicates"] += int(len(wins) - keep.sum())
-            st["kept"] += int(keep.sum())
-            kept = wins[keep].replace(frame=index)
-            recent.append((index, kept.xyxy, kept.data["scale_index"]))
-            patches.append(crops[keep])
-            windows.append(kept)
-            inputs.extend([name] * len(kept))
-            if progress is not None:
-                progress(name, index)
-    side = model.config.window
+    found: list[tuple[str, Detections, np.ndarray]] = []  # (input, kept windows, their patches) per frame
+    seen: set[str] = set()  # digests of the patches kept, over every input
+    stats = {name: _mine(source, name, detector, options, seen, found, progress) for source, name in zip(sources, names)}
+    side = detector.model.config.window
     return MinedNegatives(
-        patches=np.concatenate(patches) if patches else np.zeros((0, side, side, 3), np.uint8),
-        windows=Detections.concatenate(windows) if windows else Detections(np.zeros((0, 4), np.int64), data={"scale_index": np.zeros(0, np.int64)}),
-        inputs=np.array(inputs, dtype=str),
+        patches=np.concatenate([c for _, _, c in found]) if found else np.zeros((0, side, side, 3), np.uint8),
+        windows=Detections.concatenate([w for _, w, _ in found]) if found
+        else Detections(np.zeros((0, 4), np.int64), data={"scale_index": np.zeros(0, np.int64)}),
+        inputs=np.array([name for name, w, _ in found for _ in range(len(w))], dtype=str),
         stats=stats,
     )
+
+
+def _mine(source: MiningSource, name: str, detector: Detector, options: MiningOptions, seen: set, found: list,
+          progress) -> dict[str, int]:
+    """Mine one input into ``found``; its counts."""
+    st = {"frames": 0, "skipped_frames": 0, "hot": 0, "far": 0, "duplicates": 0, "kept": 0}
+    recent: deque = deque()  # (frame, boxes (k, 4), scale_index (k,)) of kept windows
+    for index, load in _frames_of(source.path, source.labels):
+        if not options.searches(index):
+            continue
+        labels = None
+        if source.labels is not None:
+            labels = labels_at(source.labels, index, max_gap=options.max_gap)
+            if labels is None:
+                st["skipped_frames"] += 1
+                continue
+        frame = load()
+        wins = detector.windows(frame)
+        st["frames"] += 1
+        st["hot"] += len(wins)
+        wins = wins[negative_mask(wins.xyxy, labels, options.negative_regions, max_iou=options.max_iou,
+                                  max_car_cover=options.max_car_cover, max_ignore_overlap=options.max_ignore_overlap)]
+        st["far"] += len(wins)
+        wins = wins[np.argsort(-wins.score, kind="stable")]  # hardest first
+        while recent and recent[0][0] < index - options.dedupe_frames:
+            recent.popleft()
+        crops = window_patches(frame, wins, detector.model, detector.config.plan)
+        keep = _new_windows(wins, crops, recent, seen, options.dedupe_iou)
+        st["duplicates"] += int(len(wins) - keep.sum())
+        st["kept"] += int(keep.sum())
+        kept = wins[keep].replace(frame=index)
+        recent.append((index, kept.xyxy, kept.data["scale_index"]))
+        found.append((name, kept, crops[keep]))
+        if progress is not None:
+            progress(name, index)
+    return st
+
+
+def _new_windows(wins: Detections, crops: np.ndarray, recent: deque, seen: set, dedupe_iou: float) -> np.ndarray:
+    """Which windows (hardest first) are neither near a kept window of their scale nor a patch kept before."""
+    keep = np.zeros(len(wins), bool)
+    kept_boxes = [(b, k) for _, bs, ks in recent for b, k in zip(bs, ks)]
+    for j in range(len(wins)):
+        box, k = wins.xyxy[j], int(wins.data["scale_index"][j])
+        same = [b for b, kk in kept_boxes if kk == k]
+        if same and box_iou(box[None], np.array(same)).max() >= dedupe_iou:
+            continue
+        digest = hashlib.sha1(crops[j].tobytes()).hexdigest()
+        if digest in seen:
+            continue
+        seen.add(digest)
+        keep[j] = True
+        kept_boxes.append((box, k))
+    return keep
 
 
 # --- writing --------------------------------------------------------------------------------------
