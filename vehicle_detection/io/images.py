@@ -183,7 +183,7 @@ def _is_16bit_colour(img: Image.Image, data: bytes) -> bool:
 
 def _decode_16bit_colour(data: bytes, size: tuple[int, int]) -> np.ndarray | None:
     """16-bit RGB of a 16-bit colour file, decoded by OpenCV; None if it cannot."""
-    import cv2
+    import cv2  # only for these rare files: reading an image otherwise needs Pillow alone
 
     arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if arr is None or arr.dtype != np.uint16 or arr.shape[:2] != (size[1], size[0]):

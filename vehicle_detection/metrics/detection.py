@@ -668,7 +668,7 @@ def evaluation_report(detections: Detections, annotations: Annotations, *, fps: 
         positives per frame times frames per minute); and ``tracking`` (MOTA, IDF1, HOTA, ...)
         when the labels carry track ids and the detections are tracked.
     """
-    from .tracking import tracking_scores
+    from .tracking import tracking_scores  # scipy, only for labels with track ids
 
     scores = evaluate_detections(detections, annotations, (0.5, 0.7))
     report = {

@@ -15,6 +15,7 @@ beside the checkout when it exists, else the repository's ``data/``; figures go 
 from __future__ import annotations
 
 import io
+import itertools
 import os
 import sys
 from collections.abc import Mapping, Sequence
@@ -23,8 +24,16 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.colors import ListedColormap, PowerNorm
+from matplotlib.colors import ListedColormap, PowerNorm, to_rgb
 from matplotlib.patches import Rectangle
+from PIL import Image
+
+from ..features import COLOR_SPACES, FeatureConfig, bin_spatial, color_histogram, convert_color, hog_image
+from ..geometry import box_iou
+from ..heatmap import label_heat
+from ..metrics.detection import match_frame
+from ..search import plan_windows
+from ..training.data import DATA_ENV, default_data_dir
 
 __all__ = [
     "OUTPUT_ENV",
@@ -115,8 +124,6 @@ def notebook_paths(notebook_dir: str | os.PathLike | None = None) -> NotebookPat
         The notebook's folder; default the working directory (Jupyter and
         ``tools/regenerate.py`` both run a notebook in its own folder).
     """
-    from ..training.data import DATA_ENV, default_data_dir
-
     nb = Path(notebook_dir) if notebook_dir is not None else Path.cwd()
     repo = nb.resolve().parent
     shared = repo.parent / "shared" / "data"
@@ -142,8 +149,6 @@ def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100, budget: int = P
     Path
         ``path``.
     """
-    from PIL import Image
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
@@ -177,9 +182,6 @@ def _quantize(img):
     A median-cut palette of a photograph has no room for a few pixels of pure cyan or green:
     box and window outlines would come out in dull look-alikes.
     """
-    from matplotlib.colors import to_rgb
-    from PIL import Image
-
     accents = sorted({tuple(int(round(255 * v)) for v in to_rgb(c)) for c in _ACCENTS})
     base = img.quantize(colors=256 - len(accents), method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
     palette = base.getpalette()[: 3 * (256 - len(accents))] + [v for c in accents for v in c]
@@ -329,8 +331,6 @@ def color_space_figure(patches: Mapping[str, np.ndarray], color_spaces: Sequence
     ``color_spaces`` defaults to every space :func:`~vehicle_detection.features.convert_color`
     supports.
     """
-    from ..features import COLOR_SPACES, convert_color
-
     color_spaces = COLOR_SPACES if color_spaces is None else color_spaces
     names = list(patches)
     ncols = 1 + 3 * len(names)
@@ -357,8 +357,6 @@ def _channel_names(space: str) -> tuple[str, str, str]:
 
 def hog_figure(patches: Mapping[str, np.ndarray], config):
     """Per patch: the RGB patch, then each channel of ``config.color_space`` above its HOG picture."""
-    from ..features import convert_color, hog_image
-
     names = list(patches)
     ch_names = _channel_names(config.color_space)
     fig, axes = _grid(2 * len(names), 4, 1.7, 1.75)
@@ -390,8 +388,6 @@ def hog_figure(patches: Mapping[str, np.ndarray], config):
 
 def hog_parameters_figure(patch: np.ndarray, configs: Sequence, *, title: str | None = None):
     """HOG pictures of one patch's first HOG channel under several configurations, with vector lengths."""
-    from ..features import convert_color, hog_image
-
     fig, axes = _grid(1, len(configs) + 1, 1.9, 2.25)
     axes = axes[0]
     axes[0].imshow(patch)
@@ -415,8 +411,6 @@ def hog_parameters_figure(patch: np.ndarray, configs: Sequence, *, title: str | 
 
 def spatial_bins_figure(patches: Mapping[str, np.ndarray], config):
     """Per patch: the RGB patch, its spatial bins shown as a picture, and the bin vector."""
-    from ..features import bin_spatial, convert_color
-
     s = config.spatial_size
     names = list(patches)
     fig = plt.figure(figsize=(10, 1.9 * len(names)), layout="constrained")
@@ -446,8 +440,6 @@ def spatial_bins_figure(patches: Mapping[str, np.ndarray], config):
 
 def histogram_figure(patches: Mapping[str, np.ndarray], config):
     """Colour histograms of each patch, one panel per channel of ``config.color_space``."""
-    from ..features import color_histogram, convert_color
-
     b = config.hist_bins
     ch = _channel_names(config.color_space)
     fig, axes = _grid(1, 3, 3.2, 2.4)
@@ -531,8 +523,6 @@ def showcase_configs(model_config) -> list:
     three HOG channels, with and without colour features), signed orientations, and
     ``model_config`` (the embedded model's).
     """
-    from ..features import FeatureConfig
-
     classic = dict(signed=False, hog_sqrt=False, spatial_size=16, hist_bins=32)
     return [
         FeatureConfig(color_space="RGB", orientations=9, **classic),
@@ -610,8 +600,6 @@ def search_plan_table(frame_shape, plan, config) -> str:
     Columns: scale, window side, rows searched, step, overlap of neighbouring windows, windows
     (:func:`~vehicle_detection.search.plan_windows`), all in the frame's pixels.
     """
-    from ..search import plan_windows
-
     grids = plan_windows(frame_shape, plan, config)
     f = frame_shape[0] / plan.reference_height
     rows = []
@@ -632,8 +620,6 @@ def window_grid_figure(frame: np.ndarray, plan, config, *, ncols: int = 2, rows:
     every ``k``-th window, ``k`` chosen so that drawn windows barely overlap. ``rows`` crops
     the frame shown to ``(top, bottom)`` pixel rows.
     """
-    from ..search import plan_windows
-
     grids = plan_windows(frame.shape, plan, config)
     n = len(plan.scales)
     nrows = -(-n // ncols)
@@ -693,8 +679,6 @@ def detection_stages_figure(
     rows : (int, int), optional
         Crop every panel to these pixel rows (e.g. the road, ``(360, 720)``).
     """
-    from ..heatmap import label_heat
-
     cell, thr = detector.config.tracker.cell, detector.config.image_threshold
     plan = detector.config.plan
     fig, axes = _grid(len(items), 4, 3.2, _panel_height(3.2, items[0][1].shape, rows))
@@ -746,8 +730,6 @@ def before_after_figure(items: Sequence[tuple], *, before: str = "before", after
     Labels are dashed blue; each column draws its detector's boxes in green with their IoU
     with the best-overlapping label.
     """
-    from ..geometry import box_iou
-
     x1, y1, x2, y2 = items[0][5]
     fig, axes = _grid(len(items), 2, 4.4, 4.4 * (y2 - y1) / (x2 - x1) + 0.3)
     for r, (title, frame, cars, b0, b1, crop) in enumerate(items):
@@ -793,8 +775,6 @@ def track_frames(detector, frames, first: int, count: int = 6):
         live confirmed tracks (no back-fill), and a copy of the tracker's integrated heat after
         the frame.
     """
-    import itertools
-
     tracker = detector.new_tracker()
     records = []
     for index, frame in enumerate(itertools.islice(frames, first + count)):
@@ -874,8 +854,6 @@ def labelled_frames_figure(frames: Mapping[int, np.ndarray], annotations, detect
     green when matched at ``iou_threshold``, red when false positives, orange when ignored.
     ``detections`` is a :class:`~vehicle_detection.detections.Detections` with frame indexes.
     """
-    from ..metrics.detection import match_frame
-
     idx = [i for i in annotations.frames if i in frames]
     nrows = max(1, -(-len(idx) // ncols))
     fig, axes = _grid(nrows, ncols, 4.2, 2.6)
