@@ -10,7 +10,7 @@ committed test_video.mp4. Prints frames per second for:
   encodes it to an H.264 file (libx264, ``ultrafast``, crf 23, as ``process_video`` does) with
   the same library the pipeline uses; no threads, no detection. The floor any video tool pays;
   measured in the same run as the rest;
-* decode+encode through :mod:`vehicle_detection.video` (``read_frames`` into ``VideoWriter``,
+* decode+encode through :mod:`vehicle_detection.io.video` (``read_frames`` into ``VideoWriter``,
   same settings): its threads and queues against the plain loop;
 * detection only: the detector and tracker over frames already in memory;
 * end to end: decode, detect, track, draw and encode to a file (``process_video``);
@@ -18,7 +18,7 @@ committed test_video.mp4. Prints frames per second for:
 and the ratio of end-to-end to the plain decode+encode. With ``--camera`` (a file from
 ``vehicle-detection calibrate``), also end to end with every frame undistorted, and with
 ``--lanes`` too, end to end with undistortion, lane finding and drawing, and distances
-(``process_video(camera=..., lanes=True)``), plus the cost of each step per frame. With
+(``process_video(road=Road(camera, lanes=True))``), plus the cost of each step per frame. With
 ``--full-search-every N``, also detection only and end to end with the search schedule
 (:attr:`SearchPlan.full_search_every`), against every frame searched whole, in the same run.
 """
@@ -56,7 +56,8 @@ def main():
     from vehicle_detection.classifier import VehicleClassifier
     from vehicle_detection.detector import Detector
     from vehicle_detection.pipeline import process_video
-    from vehicle_detection.video import VideoWriter, probe_video, read_frames
+    from vehicle_detection.road.survey import Road
+    from vehicle_detection.io.video import VideoWriter, probe_video, read_frames
 
     video = Path(args.video) if args.video else _default_video()
     info = probe_video(video)
@@ -85,7 +86,7 @@ def main():
         detect_fps = n / (time.perf_counter() - t)
 
         t = time.perf_counter()
-        process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, max_frames=n)
+        process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, frames=(0, n))
         e2e_fps = n / (time.perf_counter() - t)
 
         extra = []
@@ -102,19 +103,19 @@ def main():
             extra.append(f"detection only, whole frames every {args.full_search_every}: {fps:7.1f} fps   "
                          f"= {fps / detect_fps:.2f} x every frame")
             t = time.perf_counter()
-            process_video(video, Path(tmp) / "sched.mp4", detector=scheduled, progress=False, max_frames=n)
+            process_video(video, Path(tmp) / "sched.mp4", detector=scheduled, progress=False, frames=(0, n))
             fps = n / (time.perf_counter() - t)
             extra.append(f"end to end, whole frames every {args.full_search_every}: {fps:7.1f} fps   "
                          f"= {fps / e2e_fps:.2f} x every frame, {fps / plain_fps:.2f} x plain decode+encode")
         if args.camera:
-            from vehicle_detection.camera import Camera
+            from vehicle_detection.road.camera import Camera
 
             camera = Camera.load(args.camera)
             t = time.perf_counter()
             undistorted = [camera.undistort(f) for f in frames]
             extra.append(f"undistort (remap) alone        : {1000 * (time.perf_counter() - t) / n:6.2f} ms/frame")
             if args.lanes:
-                from vehicle_detection.lanes import LaneTracker
+                from vehicle_detection.road.lanes import LaneTracker
 
                 tracker = LaneTracker(camera.birds_eye)
                 t = time.perf_counter()
@@ -123,16 +124,16 @@ def main():
                 extra.append(f"lane finding alone (warp, threshold, fit): {1000 * (time.perf_counter() - t) / n:6.2f} ms/frame")
             del undistorted
             t = time.perf_counter()
-            process_video(video, Path(tmp) / "cam.mp4", detector=detector, progress=False, max_frames=n, camera=camera)
+            process_video(video, Path(tmp) / "cam.mp4", detector=detector, progress=False, frames=(0, n), road=Road(camera))
             extra.append(f"end to end, undistorted        : {n / (time.perf_counter() - t):7.1f} fps")
             if args.lanes:
                 t = time.perf_counter()
-                process_video(video, Path(tmp) / "lanes.mp4", detector=detector, progress=False, max_frames=n,
-                              camera=camera, lanes=True, lanes_csv=Path(tmp) / "lanes.csv")
+                process_video(video, Path(tmp) / "lanes.mp4", detector=detector, progress=False, frames=(0, n),
+                              road=Road(camera, lanes=True), tables={"lanes": Path(tmp) / "lanes.csv"})
                 extra.append(f"end to end, undistorted + lanes + distances: {n / (time.perf_counter() - t):7.1f} fps")
 
     print(f"decode+encode, plain PyAV (reference)    : {plain_fps:7.1f} fps")
-    print(f"decode+encode, vehicle_detection.video   : {copy_fps:7.1f} fps")
+    print(f"decode+encode, vehicle_detection.io.video: {copy_fps:7.1f} fps")
     print(f"detection only (in memory): {detect_fps:7.1f} fps   ({1000 / detect_fps:.1f} ms/frame)")
     print(f"end to end (decode, detect, track, draw, encode): {e2e_fps:7.1f} fps   "
           f"= {e2e_fps / plain_fps:.2f} x plain decode+encode")

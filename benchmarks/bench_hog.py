@@ -21,7 +21,7 @@ from vehicle_detection.features import FeatureConfig, convert_color, hog_feature
 
 def _patches(data_dir, n):
     try:
-        from vehicle_detection.data import load_dataset
+        from vehicle_detection.training.data import load_dataset
 
         ds = load_dataset(data_dir)
         idx = np.random.default_rng(0).choice(len(ds), n, replace=False)

@@ -29,7 +29,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     sys.path.insert(0, str(REPO))
-    from vehicle_detection.video import probe_video
+    from vehicle_detection.io.video import probe_video
 
     n = probe_video(args.video).n_frames
     configs = [(1, False), (2, False), (1, True), (2, True)]

@@ -37,7 +37,7 @@ def data_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def dataset(data_dir):
-    from vehicle_detection.data import load_dataset
+    from vehicle_detection.training.data import load_dataset
 
     return load_dataset(data_dir)
 
@@ -84,7 +84,7 @@ def long_video(tmp_path_factory):
 @pytest.fixture(scope="session")
 def test_frames():
     """The six committed 1280x720 test images, RGB uint8."""
-    from vehicle_detection.images import read_image
+    from vehicle_detection.io.images import read_image
 
     return [read_image(p) for p in sorted((REPO / "test_images").glob("test*.jpg"))]
 

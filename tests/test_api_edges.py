@@ -10,9 +10,9 @@ import pytest
 from PIL import Image
 
 from vehicle_detection.detections import Detections
-from vehicle_detection.drawing import draw_boxes
+from vehicle_detection.viz.drawing import draw_boxes
 from vehicle_detection.errors import InputError
-from vehicle_detection.images import as_image, decode_image, read_image
+from vehicle_detection.io.images import as_image, decode_image, read_image
 
 REPO = Path(__file__).resolve().parents[1]
 TEST1 = REPO / "test_images" / "test1.jpg"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO, shared_data_dir
-from vehicle_detection.autocamera import (
+from vehicle_detection.road.autocamera import (
     camera_from_estimate,
     estimate_birds_eye,
     estimate_birds_eye_from_video,
@@ -19,7 +19,7 @@ from vehicle_detection.autocamera import (
     sample_frames,
     save_estimate,
 )
-from vehicle_detection.camera import Camera
+from vehicle_detection.road.camera import Camera
 from vehicle_detection.errors import OutputError
 
 # The synthetic camera: a pinhole 1.3 m above a flat road, pitched 2 degrees down, no roll.
@@ -177,7 +177,7 @@ def test_camera_file_wins(synthetic_estimate, tmp_path):
 
 
 def test_road_figure(synthetic_frames, synthetic_estimate):
-    from vehicle_detection.lanes import LaneTracker
+    from vehicle_detection.road.lanes import LaneTracker
 
     view, est = synthetic_estimate
     lanes = [LaneTracker(view).step(f) for f in synthetic_frames[:2]]
@@ -220,9 +220,9 @@ def test_test_video(test_video_estimate):
 
 @pytest.mark.skipif(not (shared_data_dir() / "camera_cal").is_dir(), reason=f"no chessboard photos in {shared_data_dir()}")
 def test_test_video_distances_against_the_calibrated_camera(test_video_estimate):
-    from vehicle_detection.camera import calibrate
-    from vehicle_detection.images import read_image
-    from vehicle_detection.lanes import birds_eye_from_straight
+    from vehicle_detection.road.camera import calibrate
+    from vehicle_detection.io.images import read_image
+    from vehicle_detection.road.lanes import birds_eye_from_straight
 
     cam = calibrate(shared_data_dir() / "camera_cal")
     cal = birds_eye_from_straight([read_image(shared_data_dir() / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)], cam)

@@ -39,19 +39,19 @@ from PIL import Image
 
 import media
 from vehicle_detection import __version__
-from vehicle_detection._files import PARTIAL_SUFFIX, atomic_output, check_output_path
-from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv
+from vehicle_detection.io._files import PARTIAL_SUFFIX, atomic_output, check_output_path
+from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv
 from vehicle_detection.classifier import VehicleClassifier, _digest, default_model_path
 from vehicle_detection.errors import DownloadError, InputError, ModelError, OutputError
-from vehicle_detection.evaluate import Annotations, FrameLabels, evaluate_detections
+from vehicle_detection.metrics.detection import Annotations, FrameLabels, evaluate_detections
 from vehicle_detection.features import FEATURE_FORMAT, FeatureConfig, extract_features
 from vehicle_detection.heatmap import add_heat, heat_to_boxes, label_heat
-from vehicle_detection.images import as_rgb_uint8, decode_image, read_image, write_image
+from vehicle_detection.io.images import as_rgb_uint8, decode_image, read_image, write_image
 from vehicle_detection.config import DetectorConfig
 from vehicle_detection.detections import Detections
 from vehicle_detection.pipeline import process_video
 from vehicle_detection.tracker import Tracker, TrackerConfig
-from vehicle_detection.video import probe_video, read_frames
+from vehicle_detection.io.video import probe_video, read_frames
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
@@ -197,7 +197,7 @@ def test_wrong_patch_size_for_the_classifier_refused():
 
 
 def test_wrong_patch_size_in_training_archive_names_the_member(tmp_path):
-    from vehicle_detection.data import load_dataset
+    from vehicle_detection.training.data import load_dataset
 
     good, small = io.BytesIO(), io.BytesIO()
     Image.fromarray(picture(64, 64)).save(good, format="PNG")
@@ -288,7 +288,7 @@ def test_truncated_video_leaves_no_output(tmp_path):
     path.write_bytes(data[: len(data) // 4])
     before = sha256(path)
     with pytest.raises(InputError) as info:
-        process_video(path, tmp_path / "out.mp4", detector=fast_probe(), boxes_csv=tmp_path / "out.csv", progress=False)
+        process_video(path, tmp_path / "out.mp4", detector=fast_probe(), tables={"csv": tmp_path / "out.csv"}, progress=False)
     assert_error(info, path, "video is damaged or truncated: decoded", "of the 38 frames")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mp4"]  # no video, CSV or .partial
     assert sha256(path) == before
@@ -339,7 +339,7 @@ def test_variable_frame_rate_csv_frames_are_decoded_frames(tmp_path):
     pts = [4 * n + (37 if i > 12 else 0) for i, n in enumerate(kept)]  # in 1/100 s
     media.encode(path, media.moving_square_frames(25, 96, 64)[:20], pts=pts, time_base=Fraction(1, 100))
     out, csv = tmp_path / "out.mp4", tmp_path / "out.csv"
-    table = process_video(path, out, detector=fast_probe(), boxes_csv=csv, progress=False)
+    table = process_video(path, out, detector=fast_probe(), tables={"csv": csv}, progress=False)
     decoded = check_frame_indices(path, csv)
     assert len(decoded) == 20  # nothing duplicated or dropped to fit a constant rate
     assert len(table) == 20
@@ -351,7 +351,7 @@ def test_odd_size_h264_video(tmp_path):
     media.encode(path, media.moving_square_frames(4, 321, 241), pix_fmt="yuv444p")
     assert probe_video(path).size == (321, 241)
     out, csv = tmp_path / "out.mp4", tmp_path / "out.csv"
-    process_video(path, out, detector=fast_probe(), boxes_csv=csv, progress=False)
+    process_video(path, out, detector=fast_probe(), tables={"csv": csv}, progress=False)
     check_frame_indices(path, csv)
     info = probe_video(out)
     assert info.size == (322, 242) and info.n_frames == 4  # padded to even, every frame kept
@@ -400,7 +400,7 @@ def test_failed_write_leaves_neither_file_nor_partial(tmp_path):
 def test_video_failing_at_the_end_takes_the_csv_with_it(tmp_path, monkeypatch):
     # The CSV is renamed into place just before the video; if finishing the video then fails
     # (here: the encoder cannot write its index), neither may be left looking finished.
-    from vehicle_detection import video as video_module
+    from vehicle_detection.io import video as video_module
 
     src = tmp_path / "in.mp4"
     media.encode(src, media.moving_square_frames(3, 96, 64))
@@ -411,7 +411,7 @@ def test_video_failing_at_the_end_takes_the_csv_with_it(tmp_path, monkeypatch):
     monkeypatch.setattr(video_module.VideoWriter, "_finish", broken_finish)
     out, csv = tmp_path / "out.mp4", tmp_path / "out.csv"
     with pytest.raises(OutputError) as info:
-        process_video(src, out, detector=fast_probe(), boxes_csv=csv, progress=False)
+        process_video(src, out, detector=fast_probe(), tables={"csv": csv}, progress=False)
     assert_error(info, out, "No space left on device")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mp4"]
 
@@ -621,7 +621,7 @@ def server():
 
 @pytest.mark.parametrize("honour_range", [True, False], ids=["resumed", "restarted"])
 def test_partial_download_resumes_or_restarts(server, tmp_path, honour_range):
-    from vehicle_detection.download import download_file, part_path
+    from vehicle_detection.training.download import download_file, part_path
 
     server.honour_range = honour_range
     dest = tmp_path / "f.bin"
@@ -634,7 +634,7 @@ def test_partial_download_resumes_or_restarts(server, tmp_path, honour_range):
 
 
 def test_checksum_mismatch_deletes_the_file_and_says_so(server, tmp_path):
-    from vehicle_detection.download import download_file, part_path
+    from vehicle_detection.training.download import download_file, part_path
 
     dest = tmp_path / "f.bin"
     part_path(dest).write_bytes(b"X" * 40_000)  # not a prefix of the file: the result is wrong
@@ -645,7 +645,7 @@ def test_checksum_mismatch_deletes_the_file_and_says_so(server, tmp_path):
 
 
 def test_cli_download_of_an_invalid_archive(server, tmp_path, monkeypatch, capsys):
-    from vehicle_detection import download
+    from vehicle_detection.training import download
     from vehicle_detection.cli import main
 
     server.files["/vehicles.zip"] = b"<html>moved</html>"  # what a captive portal sends
@@ -659,7 +659,7 @@ def test_cli_download_of_an_invalid_archive(server, tmp_path, monkeypatch, capsy
 
 
 def test_download_never_reaches_the_network(tmp_path):
-    from vehicle_detection.download import download_archives
+    from vehicle_detection.training.download import download_archives
 
     with pytest.raises(DownloadError) as info:
         download_archives(tmp_path, progress=False)  # the public address: refused by the guard

@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vehicle_detection.cli import SOME_FAILED, main
-from vehicle_detection.tables import BOXES_CSV_HEADER, FILES_CSV_HEADER, read_boxes_csv
+from vehicle_detection.cli import main
+from vehicle_detection.cli.detect import SOME_FAILED
+from vehicle_detection.io.tables import BOXES_CSV_HEADER, FILES_CSV_HEADER, read_boxes_csv
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
@@ -95,22 +96,13 @@ def test_a_bad_input_is_named_and_the_others_go_on(videos, tmp_path, capsys):
     assert main(["detect", str(bad), "--out-dir", str(out), "--no-video"]) == 3
 
 
-@pytest.mark.parametrize("option", [["--camera", "camera.json"], ["--lanes"], ["--lanes-csv", "l.csv"], ["--full-search-every", "5"]])
-def test_single_input_options_are_refused_in_a_batch(videos, tmp_path, capsys, option):
-    out = tmp_path / "out"
-    assert main(["detect", str(videos), "--out-dir", str(out), "--no-video", *option]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["vehicle-detection: error: --camera, --lanes, --lanes-csv and --full-search-every apply to one input at a time, not to a batch"]
-    assert not out.exists()
-
-
 def test_frame_range_keeps_decoded_indexes(tmp_path):
     import vehicle_detection as vd
 
     assert main(["detect", str(TEST_VIDEO), "--frames", "5-20", "--no-video", "--out-dir", str(tmp_path)]) == 0
     table = read_boxes_csv(tmp_path / "test_video_boxes.csv")
     assert table.frame.min() >= 5 and table.frame.max() <= 20 and 5 in table.frame
-    ref = vd.process_video(TEST_VIDEO, None, progress=False, start=5, end=21)
+    ref = vd.process_video(TEST_VIDEO, None, progress=False, frames=(5, 21))
     assert table == ref.replace(score=np.round(ref.score, 4))  # the CSV keeps 4 decimals
     assert main(["detect", str(TEST_VIDEO), "--start", "5", "--end", "21", "--no-video", "--out-dir", str(tmp_path / "b")]) == 0
     assert (tmp_path / "b" / "test_video_boxes.csv").read_bytes() == (tmp_path / "test_video_boxes.csv").read_bytes()
@@ -119,12 +111,12 @@ def test_frame_range_keeps_decoded_indexes(tmp_path):
 def test_detect_many_python(videos, single_csv, tmp_path):
     import vehicle_detection as vd
 
-    results = vd.detect_many([videos / "b.mp4", str(videos / "a.*")], out_dir=tmp_path, video=False)
+    results = vd.detect_many([videos / "b.mp4", str(videos / "a.*")], tmp_path, vd.InputOptions(video=False))
     assert [r.path.name for r in results] == ["b.mp4", "a.mp4"]
     assert all(r.ok and r.n_boxes == 76 and r.n_frames == 38 and not r.skipped for r in results)
     assert results[0].outputs == (tmp_path / "b_boxes.csv",)
     assert (tmp_path / "b_boxes.csv").read_bytes() == single_csv
-    again = vd.detect_many(videos / "b.mp4", out_dir=tmp_path, video=False, skip_existing=True)
+    again = vd.detect_many(videos / "b.mp4", tmp_path, vd.InputOptions(video=False), skip_existing=True)
     assert again[0].skipped and again[0].error is None
 
 
@@ -175,7 +167,7 @@ def test_mot_export_reads_back_with_motmetrics(tmp_path):
 
 def test_parquet_per_input_and_one_table_for_the_batch(videos, single_csv, tmp_path):
     pytest.importorskip("pyarrow")
-    from vehicle_detection.formats import read_parquet
+    from vehicle_detection.io.formats import read_parquet
 
     out = tmp_path / "out"
     both = str(tmp_path / "all.parquet")
@@ -227,7 +219,7 @@ def test_scheduler_gives_identical_csvs(cluster, videos, single_csv, tmp_path):
 
 def test_chunks_continue_the_tracker_and_its_back_fill(cluster):
     import vehicle_detection as vd
-    from vehicle_detection.batch import detect_chunked, join_chunks, track_chunk
+    from vehicle_detection.pipeline.batch import detect_chunked, join_chunks, track_chunk
 
     _, client = cluster
     ref = vd.process_video(TEST_VIDEO, None, progress=False)
@@ -249,7 +241,7 @@ def test_chunks_continue_the_tracker_and_its_back_fill(cluster):
     assert [s[0] for s in steps] == list(range(38))
     assert join_chunks(steps, lag) == ref
     assert detect_chunked(TEST_VIDEO, 7, client=client) == ref
-    assert detect_chunked(TEST_VIDEO, 6, client=client, start=3, end=29) == vd.process_video(TEST_VIDEO, None, progress=False, start=3, end=29)
+    assert detect_chunked(TEST_VIDEO, 6, client=client, start=3, end=29) == vd.process_video(TEST_VIDEO, None, progress=False, frames=(3, 29))
     with pytest.raises(ValueError, match="continues at frame"):
         track_chunk(TEST_VIDEO, 10, 15, state)
 
@@ -258,7 +250,7 @@ def test_detect_many_with_a_client(cluster, videos, single_csv, tmp_path):
     import vehicle_detection as vd
 
     _, client = cluster
-    results = vd.detect_many(videos, out_dir=tmp_path, video=False, client=client)
+    results = vd.detect_many(videos, tmp_path, vd.InputOptions(video=False), client=client)
     assert [r.path.name for r in results] == ["a.mp4", "b.mp4", "c.mp4"] and all(r.ok for r in results)
     assert all((tmp_path / f"{n}_boxes.csv").read_bytes() == single_csv for n in "abc")
 
@@ -291,7 +283,7 @@ class FakeClip:
 def clip_frames():
     from itertools import islice
 
-    from vehicle_detection.video import read_frames
+    from vehicle_detection.io.video import read_frames
 
     frames = read_frames(TEST_VIDEO)
     try:
@@ -302,7 +294,7 @@ def clip_frames():
 
 def test_moviepy_adapter_with_a_fake_clip(clip_frames):
     import vehicle_detection as vd
-    from vehicle_detection.drawing import draw_detections
+    from vehicle_detection.viz.drawing import draw_detections
 
     detector = vd.Detector()
     adapter = vd.MoviepyAdapter(detector)
@@ -333,7 +325,7 @@ def test_moviepy_adapter_with_moviepy(tmp_path):
     # separate environment with the [moviepy] extra.
     moviepy = pytest.importorskip("moviepy", reason="moviepy 2 not installed (pip install -e '.[moviepy]')")
     import vehicle_detection as vd
-    from vehicle_detection.video import read_frames
+    from vehicle_detection.io.video import read_frames
 
     clip = moviepy.VideoFileClip(str(TEST_VIDEO)).subclipped(0, 0.6)
     raw = list(clip.iter_frames())

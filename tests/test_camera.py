@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from conftest import shared_data_dir
-from vehicle_detection.camera import Camera, calibrate
+from vehicle_detection.road.camera import Camera, calibrate
 from vehicle_detection.cli import main
 from vehicle_detection.errors import InputError
-from vehicle_detection.images import write_image
+from vehicle_detection.io.images import write_image
 
 SIZE = (640, 480)
 K_TRUE = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])

@@ -10,16 +10,8 @@ import numpy as np
 import pytest
 
 from vehicle_detection import __version__
-from vehicle_detection.classifier import (
-    _digest,
-    VehicleClassifier,
-    default_model_path,
-    load_default_model,
-    split_indices,
-    sweep,
-    sweep_configs,
-    train,
-)
+from vehicle_detection.classifier import _digest, VehicleClassifier, default_model_path, load_default_model
+from vehicle_detection.training.fit import split_indices, sweep, sweep_configs, train
 from vehicle_detection.errors import InputError, ModelError, OutputError
 from vehicle_detection.features import FEATURE_FORMAT, FeatureConfig, extract_features
 

@@ -26,11 +26,11 @@ from conftest import small_archives
 from PIL import Image
 
 import media
-from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv
+from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv
 from vehicle_detection.cli import main
 from vehicle_detection.classifier import default_model_path
-from vehicle_detection.images import read_image
-from vehicle_detection.video import probe_video, read_frames
+from vehicle_detection.io.images import read_image
+from vehicle_detection.io.video import probe_video, read_frames
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
@@ -262,12 +262,12 @@ def test_installed_console_script(error_runs):
 
 
 def test_interrupted_message_is_one_line(monkeypatch, capsys):
-    import vehicle_detection.cli as cli
+    import vehicle_detection.cli.detect as detect
 
     def interrupted(args):
         raise KeyboardInterrupt
 
-    monkeypatch.setitem(cli._COMMANDS, "detect", interrupted)
+    monkeypatch.setattr(detect, "run", interrupted)
     assert main(["detect", "x.png"]) == 130
     assert capsys.readouterr().err.splitlines() == ["vehicle-detection: interrupted"]
 
@@ -535,7 +535,7 @@ def test_evaluate_report_writes_the_sheet_and_the_tables(scored_case, tmp_path, 
     sheet = np.array(Image.open(report / "failures_dash.png").convert("RGB"))
     # 3 tiles of 256 x (192 + 38) px in one row, 4 px apart, under a 62 px header.
     assert sheet.shape == (62 + 4 + 230 + 4, 4 + 3 * 260, 3)
-    from vehicle_detection.drawing import KIND_COLORS, LABEL_COLOR, REPORTED_COLOR
+    from vehicle_detection.viz.drawing import KIND_COLORS, LABEL_COLOR, REPORTED_COLOR
 
     def has(color):
         return bool((sheet == color).all(axis=-1).any())

@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.data: the training set from the real archives and from fake ones."""
+"""Tests of vehicle_detection.training.data: the training set from the real archives and from fake ones."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vehicle_detection.data import DATA_ENV, default_data_dir, find_duplicates, load_dataset
+from vehicle_detection.training.data import DATA_ENV, default_data_dir, find_duplicates, load_dataset
 from vehicle_detection.errors import InputError
 
 # From the data README (and the Udacity project description).
@@ -149,7 +149,7 @@ def test_groups_follow_folders_and_file_number_blocks(dataset):
 
 
 def test_grouped_split_never_separates_duplicates(dataset):
-    from vehicle_detection.classifier import split_indices
+    from vehicle_detection.training.fit import split_indices
 
     train, test = split_indices(dataset.labels, dataset.groups, test_size=0.2, random_state=3)
     side = np.zeros(len(dataset), np.int8)
@@ -368,7 +368,7 @@ def test_archives_are_closed_after_loading(tmp_path, monkeypatch):
 
     from PIL import Image
 
-    import vehicle_detection.data as data_module
+    import vehicle_detection.training.data as data_module
 
     for cls in ("vehicles", "non-vehicles"):
         with zipfile.ZipFile(tmp_path / f"{cls}.zip", "w") as zf:

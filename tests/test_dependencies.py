@@ -37,8 +37,8 @@ def test_detecting_imports_no_plotting_library(tmp_path):
 @pytest.mark.parametrize(
     ("blocked", "code", "message"),
     [
-        ("matplotlib", "import vehicle_detection.plots",
-         'the figures (vehicle_detection.plots) needs matplotlib, which is not installed: pip install "vehicle-detection[notebooks]"'),
+        ("matplotlib", "import vehicle_detection.viz.plots",
+         'the figures (vehicle_detection.viz.plots) needs matplotlib, which is not installed: pip install "vehicle-detection[notebooks]"'),
         ("skimage", "import numpy as np\nfrom vehicle_detection.features import FeatureConfig, hog_image\n"
                     "hog_image(np.zeros((64, 64), np.uint8), FeatureConfig())",
          'the HOG picture (hog_image) needs skimage, which is not installed: pip install "vehicle-detection[notebooks]"'),

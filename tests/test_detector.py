@@ -134,7 +134,7 @@ def clip_a_frames():
     from itertools import islice
 
     from conftest import REPO
-    from vehicle_detection.video import read_frames
+    from vehicle_detection.io.video import read_frames
 
     frames = read_frames(REPO / "dev_set" / "project_video_clip_A.mp4")
     try:
@@ -215,7 +215,7 @@ def test_config_overlay_setting_round_trips():
 
 def test_cli_reports_the_bars(tmp_path, capsys, clip_a_frames):
     from vehicle_detection.cli import main
-    from vehicle_detection.video import VideoWriter
+    from vehicle_detection.io.video import VideoWriter
 
     video = tmp_path / "pillarbox.mp4"
     with VideoWriter(video, 25, (1600, 720)) as writer:
@@ -241,7 +241,7 @@ def _labelled_cars(name):
 def test_two_cars_side_by_side_stay_two_boxes(name):
     """The black car copied 6 px to its own left: two cars whose heat touches, two boxes."""
     from vehicle_detection.geometry import box_iou
-    from vehicle_detection.images import read_image
+    from vehicle_detection.io.images import read_image
 
     frame = read_image(Path(__file__).resolve().parents[1] / "test_images" / name).copy()
     x1, y1, x2, y2 = _labelled_cars(name)[0].astype(int)
@@ -260,7 +260,7 @@ def test_a_car_larger_than_192_px_gets_a_fitting_box(name, zoom):
     import cv2
 
     from vehicle_detection.geometry import box_iou
-    from vehicle_detection.images import read_image
+    from vehicle_detection.io.images import read_image
 
     frame = read_image(Path(__file__).resolve().parents[1] / "test_images" / name)
     c = np.array([880.0, 420.0])

@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.download against an in-process HTTP server on 127.0.0.1.
+"""Tests of vehicle_detection.training.download against an in-process HTTP server on 127.0.0.1.
 
 No test touches the network: the server below serves bytes from memory, honours (or, when told,
 ignores) ``Range`` requests, and can cut a transfer short or stall in the middle of one.
@@ -22,7 +22,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from vehicle_detection.download import (
+from vehicle_detection.training.download import (
     ARCHIVES,
     DEFAULT_BASE_URL,
     Archive,

@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.drawing."""
+"""Tests of vehicle_detection.viz.drawing."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vehicle_detection.detections import Detections
-from vehicle_detection.drawing import draw_boxes, draw_detections
+from vehicle_detection.viz.drawing import draw_boxes, draw_detections
 
 
 def _image(h=60, w=80, value=50):
@@ -89,7 +89,7 @@ def test_draw_detections_labels_tracked_boxes_only():
 
 
 def test_context_region_stays_in_the_frame_at_the_aspect_ratio():
-    from vehicle_detection.drawing import context_region
+    from vehicle_detection.viz.drawing import context_region
 
     r = context_region([[600, 300, 700, 380]], (720, 1280, 3))
     assert r[0] < 600 and r[1] < 300 and r[2] > 700 and r[3] > 380
@@ -101,8 +101,8 @@ def test_context_region_stays_in_the_frame_at_the_aspect_ratio():
 
 
 def test_failure_tile_and_sheet_shapes():
-    from vehicle_detection.drawing import IGNORE_COLOR, LABEL_COLOR, REPORTED_COLOR, failure_sheet, failure_tile
-    from vehicle_detection.evaluate import Failure
+    from vehicle_detection.viz.drawing import IGNORE_COLOR, LABEL_COLOR, REPORTED_COLOR, failure_sheet, failure_tile
+    from vehicle_detection.metrics.detection import Failure
 
     frame = _image(h=720, w=1280, value=90)
     miss = Failure(0, "miss", np.array([600.0, 300, 700, 380]), 0.2, np.array([640.0, 300, 740, 380]))

@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.evaluate: matching, annotation loading and scores.
+"""Tests of vehicle_detection.metrics.detection: matching, annotation loading and scores.
 
 Expected values are worked out by hand in the comments beside them.
 """
@@ -18,7 +18,7 @@ from strategies import box_sets
 from vehicle_detection.detections import Detections
 from vehicle_detection.errors import InputError
 from vehicle_detection.geometry import box_iou
-from vehicle_detection.evaluate import (
+from vehicle_detection.metrics.detection import (
     Annotations,
     average_precision,
     camera_name,
@@ -604,11 +604,11 @@ def test_find_failures_over_frames():
 
 
 # --------------------------------------------------------------------------------------------
-# The report folder (vehicle_detection.reporting)
+# The report folder (vehicle_detection.metrics.reporting)
 # --------------------------------------------------------------------------------------------
 def test_select_failures_puts_misses_and_false_positives_first():
-    from vehicle_detection.evaluate import Failure
-    from vehicle_detection.reporting import select_failures
+    from vehicle_detection.metrics.detection import Failure
+    from vehicle_detection.metrics.reporting import select_failures
 
     box = np.array(SQUARE, float)
     items = [(1, Failure(3, "loose", box, 0.6)), (0, Failure(9, "false positive", box, 0.0)),
@@ -630,8 +630,8 @@ def test_select_failures_puts_misses_and_false_positives_first():
 
 
 def test_camera_sheet_caps_the_tiles(tmp_path):
-    from vehicle_detection.images import write_image
-    from vehicle_detection.reporting import ReportSource, camera_sheet
+    from vehicle_detection.io.images import write_image
+    from vehicle_detection.metrics.reporting import ReportSource, camera_sheet
 
     folder = tmp_path / "imgs"
     for i in range(3):

@@ -10,7 +10,7 @@ from conftest import REPO
 from vehicle_detection.config import DetectorConfig
 from vehicle_detection.detector import Detector
 from vehicle_detection.horizon import TOLERANCE, estimate_horizon, vanishing_row
-from vehicle_detection.images import read_image
+from vehicle_detection.io.images import read_image
 from vehicle_detection.search import SearchPlan
 
 
@@ -52,7 +52,7 @@ def test_estimate_needs_agreement():
 def _first_frames(path, n=25):
     from itertools import islice
 
-    from vehicle_detection.video import read_frames
+    from vehicle_detection.io.video import read_frames
 
     frames = read_frames(path)
     try:
@@ -133,17 +133,18 @@ def test_config_horizon_settings_round_trip():
 
 @pytest.mark.parametrize("value, auto, horizon", [("auto", True, None), ("plan", False, None), ("0.5", True, 0.5)])
 def test_cli_horizon_values(value, auto, horizon):
-    from vehicle_detection.cli import _load_detector, build_parser
+    from vehicle_detection.cli import build_parser
+    from vehicle_detection.cli.options import load_detector
 
     args = build_parser().parse_args(["detect", "x.mp4", "--horizon", value])
-    config = _load_detector(None, args.horizon).config
+    config = load_detector(None, args.horizon).config
     assert config.auto_horizon is auto and config.plan.horizon == horizon
     assert Detector(config=config).estimates_horizon is (auto and horizon is None)
 
 
 def test_cli_reports_the_estimated_horizon(tmp_path, capsys):
     from vehicle_detection.cli import main
-    from vehicle_detection.video import VideoWriter
+    from vehicle_detection.io.video import VideoWriter
 
     video = tmp_path / "tilted.mp4"
     with VideoWriter(video, 25, (1280, 720)) as writer:
@@ -163,10 +164,10 @@ def test_process_video_continues_a_given_tracker_only_at_its_frame(tmp_path):
 
     detector = Detector()
     tracker = detector.new_tracker()
-    table = process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, max_frames=6, tracker=tracker)
+    table = process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, frames=(0, 6), tracker=tracker)
     assert tracker.state.frame_index == 6 and tracker.state.horizon_searched and set(table.frame) <= set(range(6))
     with pytest.raises(ValueError, match="continues at frame 6, not at start=0"):
-        process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, max_frames=6, tracker=tracker)
+        process_video(REPO / "test_video.mp4", None, detector=detector, progress=False, frames=(0, 6), tracker=tracker)
 
 
 def test_detector_load(tmp_path):

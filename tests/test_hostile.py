@@ -28,11 +28,11 @@ import pytest
 from PIL import Image, ImageFile, ImageOps
 
 import media
-from vehicle_detection._files import PARTIAL_SUFFIX, atomic_output, check_output_path
+from vehicle_detection.io._files import PARTIAL_SUFFIX, atomic_output, check_output_path
 from vehicle_detection.cli import main
 from vehicle_detection.errors import InputError, OutputError
 from vehicle_detection.features import FeatureConfig
-from vehicle_detection.images import decode_image, read_image
+from vehicle_detection.io.images import decode_image, read_image
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
@@ -198,7 +198,7 @@ def test_extreme_aspect_ratio_refused_before_decoding(tmp_path, monkeypatch, w, 
 
 @pytest.mark.parametrize(("w", "h"), [(400, 50), (50, 200), (8, 1), (1, 4), (1280, 720), (720, 1280)])
 def test_aspect_ratio_limits_are_inclusive(tmp_path, w, h):
-    from vehicle_detection.images import check_frame_shape
+    from vehicle_detection.io.images import check_frame_shape
 
     path = tmp_path / "ok.png"
     Image.new("RGB", (w, h), (10, 20, 30)).save(path)
@@ -207,7 +207,7 @@ def test_aspect_ratio_limits_are_inclusive(tmp_path, w, h):
 
 
 def test_check_frame_shape_bounds_the_scaled_size():
-    from vehicle_detection.images import check_frame_shape
+    from vehicle_detection.io.images import check_frame_shape
 
     check_frame_shape(720, 5760, "v.mp4")  # 8:1 at 720 px: the largest working frame
     with pytest.raises(InputError, match=r"^v\.mp4: image of 5761x720 pixels is too wide"):
@@ -234,7 +234,7 @@ def test_cli_refuses_a_wide_image_with_exit_3_and_no_output(tmp_path, capsys):
 
 
 def test_failed_overwrite_of_an_image_keeps_both_previous_outputs(tmp_path, capsys, monkeypatch):
-    import vehicle_detection.tables as boxes_module
+    import vehicle_detection.io.tables as boxes_module
 
     img = save(tmp_path / "street.png", picture())
     assert run_main(capsys, "detect", img)[0] == 0
@@ -275,7 +275,7 @@ def test_folder_outputs_appear_together_or_not_at_all(tmp_path, capsys):
 
 @needs_media
 def test_failed_overwrite_of_a_video_keeps_both_previous_outputs(tmp_path, capsys, monkeypatch):
-    from vehicle_detection import video as video_module
+    from vehicle_detection.io import video as video_module
 
     clip = tmp_path / "clip.mp4"
     media.copy_packets(TEST_VIDEO, clip, max_frames=3)
@@ -294,7 +294,7 @@ def test_failed_overwrite_of_a_video_keeps_both_previous_outputs(tmp_path, capsy
 
 
 def test_output_batch_commits_all_or_nothing(tmp_path):
-    from vehicle_detection._files import output_batch
+    from vehicle_detection.io._files import output_batch
 
     old = tmp_path / "old.txt"
     old.write_text("previous\n")
@@ -419,7 +419,7 @@ def test_disk_full_writing_an_image(tmp_path, capsys, monkeypatch, code):
 
 
 def test_disk_full_writing_the_csv(tmp_path, capsys, monkeypatch):
-    import vehicle_detection.tables as boxes_module
+    import vehicle_detection.io.tables as boxes_module
 
     img = save(tmp_path / "street.png", picture())
     monkeypatch.setattr(boxes_module.Path, "write_text", enospc)
@@ -485,7 +485,8 @@ def test_feature_config_needs_three_blocks_per_window(ppc, cpb, ok):
     assert cfg.blocks_per_window == 3
     # The boundary really is the search's: a model of this config scores every window.
     from vehicle_detection.classifier import VehicleClassifier
-    from vehicle_detection.search import SearchPlan, SearchScale, search, search_plain
+    from reference_search import search_plain
+    from vehicle_detection.search import SearchPlan, SearchScale, search
 
     rng = np.random.default_rng(1)
     model = VehicleClassifier.fit(rng.normal(size=(20, cfg.n_features)), np.repeat([0, 1], 10), cfg)
@@ -576,8 +577,8 @@ def test_sweep_subsample_too_small_is_a_usage_error(tmp_path, capsys):
 
 def test_split_size_rule_is_sufficient():
     """Data sets the check accepts never make scikit-learn raise, whatever the seed."""
-    from vehicle_detection.classifier import train
-    from vehicle_detection.data import Dataset, check_split_sizes
+    from vehicle_detection.training.fit import train
+    from vehicle_detection.training.data import Dataset, check_split_sizes
 
     cfg = FeatureConfig(spatial_size=0, hist_bins=0, hog_channels=(0,), orientations=4)
     # Imbalanced groups: 4 vehicle groups among 12; the grouped split leaves 3 out of training.

@@ -20,8 +20,8 @@ from PIL import Image
 
 from vehicle_detection.detections import Detections
 from vehicle_detection.errors import InputError, MissingDependencyError, OutputError
-from vehicle_detection.html_report import CROP_HEIGHT, RunSummary, render_html_report, summarize, track_spans, write_html_report
-from vehicle_detection.tables import read_lanes_csv, write_boxes_csv, write_lanes_csv
+from vehicle_detection.viz.report import CROP_HEIGHT, RunSummary, render_html_report, summarize, track_spans, write_html_report
+from vehicle_detection.io.tables import read_lanes_csv, write_boxes_csv, write_lanes_csv
 
 needs_matplotlib = pytest.mark.skipif(
     importlib.util.find_spec("matplotlib") is None, reason='matplotlib not installed (pip install -e ".[test]")'
@@ -187,7 +187,7 @@ def test_report_without_matplotlib_names_the_extra():
     code = (
         "import sys; sys.modules['matplotlib'] = None\n"
         "from vehicle_detection.detections import Detections\n"
-        "from vehicle_detection.html_report import render_html_report\n"
+        "from vehicle_detection.viz.report import render_html_report\n"
         "from vehicle_detection.errors import MissingDependencyError\n"
         "try:\n"
         "    render_html_report(Detections([[0, 0, 9, 9]]))\n"

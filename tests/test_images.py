@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.images: decoding files, checking arrays, writing and listing images."""
+"""Tests of vehicle_detection.io.images: decoding files, checking arrays, writing and listing images."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from vehicle_detection.errors import InputError, OutputError
-from vehicle_detection.images import as_rgb_uint8, decode_image, list_images, read_image, write_image
+from vehicle_detection.io.images import as_rgb_uint8, decode_image, list_images, read_image, write_image
 
 HYP = settings(deadline=None, max_examples=30, database=None)
 
@@ -396,7 +396,7 @@ def test_list_images_empty_or_missing_folder(tmp_path):
 def test_pillow_global_setting_is_left_alone_and_the_pixel_limit_holds(tmp_path, monkeypatch):
     import PIL.Image
 
-    import vehicle_detection.images as images
+    import vehicle_detection.io.images as images
 
     assert PIL.Image.MAX_IMAGE_PIXELS == 89_478_485  # Pillow's own default, untouched by the import
     monkeypatch.setattr(images, "MAX_IMAGE_PIXELS", 100 * 100 - 1)

@@ -10,15 +10,15 @@ import pytest
 
 from conftest import REPO, shared_data_dir
 from vehicle_detection.detections import Detections
-from vehicle_detection.lanes import (
+from vehicle_detection.road.distance import DistanceTracker
+from vehicle_detection.road.lanes import (
     BirdsEye,
-    DistanceTracker,
     LaneTracker,
     birds_eye_from_straight,
     draw_lane,
     lane_measures,
 )
-from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv, write_boxes_csv, write_lanes_csv
+from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv, write_boxes_csv, write_lanes_csv
 
 W, H = 640, 360
 XM = 3.7 / 320  # lines 320 px apart
@@ -177,8 +177,8 @@ needs_data = pytest.mark.skipif(
 
 @pytest.fixture(scope="module")
 def real_camera():
-    from vehicle_detection.camera import calibrate
-    from vehicle_detection.images import read_image
+    from vehicle_detection.road.camera import calibrate
+    from vehicle_detection.io.images import read_image
 
     cam = calibrate(DATA / "camera_cal")
     frames = [read_image(DATA / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)]

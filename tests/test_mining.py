@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.mining (hard-negative mining), search.window_patches, extra
+"""Tests of vehicle_detection.training.mining (hard-negative mining), search.window_patches, extra
 negatives in load_dataset, and the ``mine-negatives`` / ``train --extra-negatives`` commands."""
 
 from __future__ import annotations
@@ -19,14 +19,15 @@ from PIL import Image
 from vehicle_detection.classifier import VehicleClassifier
 from vehicle_detection.cli import main
 from vehicle_detection.config import DetectorConfig
-from vehicle_detection.data import load_dataset
+from vehicle_detection.training.data import load_dataset
 from vehicle_detection.detections import Detections
 from vehicle_detection.detector import Detector
 from vehicle_detection.errors import InputError, OutputError
-from vehicle_detection.evaluate import Annotations, FrameLabels
-from vehicle_detection.images import read_image, write_image
-from vehicle_detection.mining import (
+from vehicle_detection.metrics.detection import Annotations, FrameLabels
+from vehicle_detection.io.images import read_image, write_image
+from vehicle_detection.training.mining import (
     MinedNegatives,
+    MiningOptions,
     MiningSource,
     labels_at,
     mine_negatives,
@@ -135,7 +136,7 @@ def test_window_patches_are_the_crops_in_the_tiny_plan(tiny, default_model):
 
 def test_mining_gives_exactly_the_expected_crops(tiny):
     folder, frames, detector, ann = tiny
-    no_dedupe = mine_negatives([MiningSource(folder, ann)], detector, dedupe_iou=1.01)
+    no_dedupe = mine_negatives([MiningSource(folder, ann)], detector, MiningOptions(dedupe_iou=1.01))
     # Windows 0 and 2 of each frame, hardest (highest score) first.
     assert no_dedupe.windows.frame.tolist() == [0, 0, 1, 1, 2, 2]
     assert no_dedupe.windows.xyxy.tolist() == [TINY_WINDOWS[k].tolist() for k in (2, 0) * 3]
@@ -149,10 +150,10 @@ def test_mining_gives_exactly_the_expected_crops(tiny):
     deduped = mine_negatives([MiningSource(folder, ann)], detector)
     assert deduped.windows.frame.tolist() == [0, 0] and deduped.stats["frames"]["duplicates"] == 4
     # ... unless the frames are farther apart than dedupe_frames.
-    apart = mine_negatives([MiningSource(folder, ann)], detector, dedupe_frames=1, every=2)
+    apart = mine_negatives([MiningSource(folder, ann)], detector, MiningOptions(dedupe_frames=1, every=2))
     assert apart.windows.frame.tolist() == [0, 0, 2, 2]
     # Frames left out are never searched.
-    only = mine_negatives([MiningSource(folder, ann)], detector, frames=[1], dedupe_iou=1.01)
+    only = mine_negatives([MiningSource(folder, ann)], detector, MiningOptions(frames=[1], dedupe_iou=1.01))
     assert only.windows.frame.tolist() == [1, 1] and only.stats["frames"]["frames"] == 1
     np.testing.assert_array_equal(only.patches, want[2:4])
 
@@ -161,14 +162,14 @@ def test_mining_without_labels_needs_a_negative_region(tiny):
     folder, frames, detector, _ = tiny
     with pytest.raises(InputError, match="no labels for this input"):
         mine_negatives([MiningSource(folder)], detector)
-    mined = mine_negatives([MiningSource(folder)], detector, negative_regions=[[100, 0, 256, 64]], dedupe_iou=1.01)
+    mined = mine_negatives([MiningSource(folder)], detector, MiningOptions(negative_regions=[[100, 0, 256, 64]], dedupe_iou=1.01))
     assert mined.windows.xyxy.tolist() == [TINY_WINDOWS[k].tolist() for k in (3, 2) * 3]
 
 
 def test_labelled_frames_far_from_labels_are_skipped(tiny):
     folder, _, detector, _ = tiny
     ann = _ann({0: {"cars": [[64, 0, 128, 64]]}})
-    mined = mine_negatives([MiningSource(folder, ann)], detector, dedupe_iou=1.01)
+    mined = mine_negatives([MiningSource(folder, ann)], detector, MiningOptions(dedupe_iou=1.01))
     assert mined.windows.frame.tolist() == [0, 0, 0]  # frames 1 and 2 lie after the last label
     assert mined.stats["frames"]["skipped_frames"] == 2
 
@@ -335,3 +336,17 @@ def test_labels_of_an_image_folder_must_name_its_images(tiny):
     ann = _ann({0: {"cars": [], "file": "f0.png"}, 1: {"cars": [], "file": "f2.png"}})
     with pytest.raises(InputError, match="frame 1 is labelled as f2.png, but image 1 of .* is f1.png"):
         mine_negatives([MiningSource(folder, ann)], detector)
+
+
+def test_the_earlier_keywords_of_mine_negatives_still_work(tmp_path):
+    """``mine_negatives(..., every=2, dedupe_iou=...)`` gives what ``MiningOptions`` gives, with a warning."""
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    shutil.copyfile(TEST_IMAGES / "test1.jpg", folder / "a.jpg")
+    regions = [[0, 0, 1280, 720]]
+    new = mine_negatives([MiningSource(folder)], None, MiningOptions(negative_regions=regions, dedupe_iou=1.01))
+    with pytest.warns(DeprecationWarning, match="mine_negatives"):
+        old = mine_negatives([MiningSource(folder)], None, negative_regions=regions, dedupe_iou=1.01)
+    assert old.stats == new.stats and np.array_equal(old.patches, new.patches)
+    with pytest.raises(ValueError, match="every"):
+        MiningOptions(every=0)

@@ -29,7 +29,7 @@ MOUNT = (760, 290, 850, 345)  # inside the windscreen mount at the right of the 
 
 
 def frames_of(path, start=0, n=12):
-    from vehicle_detection.video import read_frames
+    from vehicle_detection.io.video import read_frames
 
     frames = read_frames(path)
     try:
@@ -207,7 +207,7 @@ def test_burnt_in_text_is_masked_only_near_the_top_or_bottom():
 
 
 def test_static_mask_of_the_project_camera_spares_the_road_and_the_cars(clip_a):
-    from vehicle_detection.evaluate import load_annotations
+    from vehicle_detection.metrics.detection import load_annotations
 
     labels = load_annotations(REPO / "dev_set" / "clip_A.json")
     horizon, bottom = int(0.583 * 720), int(0.92 * 720)  # below: the bonnet

@@ -1,4 +1,4 @@
-"""Tests for vehicle_detection.plots: every figure helper on small synthetic inputs (Agg backend)."""
+"""Tests for vehicle_detection.viz.plots: every figure helper on small synthetic inputs (Agg backend)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import pytest  # noqa: E402
 from matplotlib import pyplot as plt  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from vehicle_detection import plots  # noqa: E402
+from vehicle_detection.viz import plots  # noqa: E402
 from vehicle_detection.config import DetectorConfig  # noqa: E402
 from vehicle_detection.detections import Detections  # noqa: E402
 from vehicle_detection.detector import Detector  # noqa: E402
-from vehicle_detection.evaluate import Annotations, FrameLabels  # noqa: E402
+from vehicle_detection.metrics.detection import Annotations, FrameLabels  # noqa: E402
 from vehicle_detection.features import COLOR_SPACES, FeatureConfig  # noqa: E402
 from vehicle_detection.search import SearchPlan, SearchScale  # noqa: E402
 from vehicle_detection.tracker import TrackerConfig  # noqa: E402

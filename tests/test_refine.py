@@ -173,9 +173,9 @@ def test_offsets_are_the_linear_map_of_the_features():
 
 
 def test_labelled_frames_give_vehicle_patches_grouped_by_blocks(tmp_path):
-    from vehicle_detection.data import Dataset
-    from vehicle_detection.evaluate import load_annotations
-    from vehicle_detection.mining import labelled_dataset
+    from vehicle_detection.training.data import Dataset
+    from vehicle_detection.metrics.detection import load_annotations
+    from vehicle_detection.training.mining import labelled_dataset
 
     repo = Path(__file__).resolve().parents[1]
     labels = load_annotations(repo / "dev_set" / "test_images.json")

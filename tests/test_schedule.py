@@ -109,7 +109,7 @@ def test_cli_full_search_every(tmp_path):
 
     import media
     from vehicle_detection.cli import main
-    from vehicle_detection.tables import read_boxes_csv
+    from vehicle_detection.io.tables import read_boxes_csv
 
     frames = media.copy_packets(Path(__file__).resolve().parents[1] / "test_video.mp4", tmp_path / "clip.mp4", max_frames=12)
     assert main(["detect", str(frames), "--out", str(tmp_path / "o.mp4"), "--boxes", str(tmp_path / "o.csv"),

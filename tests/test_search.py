@@ -5,15 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vehicle_detection.search import (
-    SearchPlan,
-    SearchScale,
-    classify_windows,
-    plan_windows,
-    search,
-    search_plain,
-    slide_window,
-)
+from reference_search import classify_windows, search_plain, slide_window
+from vehicle_detection.search import SearchPlan, SearchScale, plan_windows, search
 
 
 def test_slide_window_counts_and_geometry():

@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.tables: the boxes CSV format."""
+"""Tests of vehicle_detection.io.tables: the boxes CSV format."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from vehicle_detection.detections import Detections
 from vehicle_detection.errors import InputError, OutputError
-from vehicle_detection.evaluate import Annotations, FrameLabels, evaluate_detections
-from vehicle_detection.tables import BOXES_CSV_HEADER, read_boxes_csv, write_boxes_csv
+from vehicle_detection.metrics.detection import Annotations, FrameLabels, evaluate_detections
+from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv, write_boxes_csv
 
 DETS = Detections(
     [[10, 20, 74, 84], [0, 0, 64, 64], [100, 20, 164, 84], [500, 400, 596, 496]],

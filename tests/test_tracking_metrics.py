@@ -1,4 +1,4 @@
-"""Tests of vehicle_detection.tracking_metrics: hand-worked sequences, and py-motmetrics as an
+"""Tests of vehicle_detection.metrics.tracking: hand-worked sequences, and py-motmetrics as an
 independent reference for MOTA and IDF1."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vehicle_detection.geometry import box_iou
-from vehicle_detection.tracking_metrics import ALPHAS, tracking_scores
+from vehicle_detection.metrics.tracking import ALPHAS, tracking_scores
 
 BOX = np.array([[0, 0, 10, 10]])
 NONE = np.zeros((0, 4), np.int64)

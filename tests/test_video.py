@@ -1,4 +1,4 @@
-"""Tests for vehicle_detection.video: probing, decoding, encoding, damaged files and cleanup.
+"""Tests for vehicle_detection.io.video: probing, decoding, encoding, damaged files and cleanup.
 
 The videos are made in ``tmp_path`` with PyAV directly (``tests/media.py``), small and fast.
 """
@@ -18,10 +18,10 @@ import pytest
 
 import media
 from media import encode, frame_number, moving_square_frames, numbered_frames
-from vehicle_detection import video as video_module
-from vehicle_detection._files import PARTIAL_SUFFIX
+from vehicle_detection.io import video as video_module
+from vehicle_detection.io._files import PARTIAL_SUFFIX
 from vehicle_detection.errors import InputError, OutputError
-from vehicle_detection.video import VideoInfo, VideoWriter, probe_video, read_frames
+from vehicle_detection.io.video import VideoInfo, VideoWriter, probe_video, read_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_VIDEO = ROOT / "test_video.mp4"

@@ -3,11 +3,11 @@
     python tools/compare_road_estimate.py [--data ../shared/data] [--cache DIR] [--figure FIG.png]
 
 For clip A and ``test_video.mp4``: the bird's-eye transform estimated from each video without any
-camera file (:func:`vehicle_detection.autocamera.estimate_birds_eye_from_video`, frames used as
+camera file (:func:`vehicle_detection.road.autocamera.estimate_birds_eye_from_video`, frames used as
 they are) against the calibrated run (the camera and transform that
 ``vehicle-detection calibrate DATA/camera_cal --straight DATA/lanes/straight_lines1.jpg
 DATA/lanes/straight_lines2.jpg --out cam.json`` makes; frames undistorted). Per frame, each
-setup's :class:`~vehicle_detection.lanes.LaneTracker` gives the radius of curvature and the
+setup's :class:`~vehicle_detection.road.lanes.LaneTracker` gives the radius of curvature and the
 offset; the tracked boxes of one detection run (frames as decoded) get a distance from each
 transform (the calibrated one after undistorting the box's bottom centre). Printed: the share
 of frames whose radii agree within a factor of 1.5, the share (and the largest difference) of
@@ -15,7 +15,7 @@ offsets within 0.25 m, and the share of tracked boxes whose distances agree with
 
 For the highway clip (another camera, no calibration): the estimate, the share of frames with a
 lane, and, for each track that approaches (its distance falls by 5 m or more), how monotonic its
-distance is. ``--figure`` writes the highway figure (:func:`vehicle_detection.autocamera.road_figure`);
+distance is. ``--figure`` writes the highway figure (:func:`vehicle_detection.road.autocamera.road_figure`);
 the clip's licence is unknown: keep the figure out of the repository.
 """
 
@@ -31,9 +31,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def calibrated_camera(data: Path):
-    from vehicle_detection.camera import calibrate
-    from vehicle_detection.images import read_image
-    from vehicle_detection.lanes import birds_eye_from_straight
+    from vehicle_detection.road.camera import calibrate
+    from vehicle_detection.io.images import read_image
+    from vehicle_detection.road.lanes import birds_eye_from_straight
 
     cam = calibrate(data / "camera_cal")
     frames = [read_image(data / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)]
@@ -41,8 +41,8 @@ def calibrated_camera(data: Path):
 
 
 def lanes_per_frame(path: Path, birds_eye, camera=None) -> list:
-    from vehicle_detection.lanes import LaneTracker
-    from vehicle_detection.video import read_frames
+    from vehicle_detection.road.lanes import LaneTracker
+    from vehicle_detection.io.video import read_frames
 
     tracker = LaneTracker(birds_eye)
     return [tracker.step(camera.undistort(f) if camera is not None else f) for f in read_frames(path)]
@@ -50,15 +50,15 @@ def lanes_per_frame(path: Path, birds_eye, camera=None) -> list:
 
 def tracked_boxes(path: Path, cache: Path | None):
     """Every tracked box of the video (frames as decoded), cached as a boxes CSV."""
-    from vehicle_detection.pipeline import process_video
-    from vehicle_detection.tables import read_boxes_csv
+    from vehicle_detection.pipeline.video import process_video
+    from vehicle_detection.io.tables import read_boxes_csv
 
     if cache is not None:
         csv = cache / f"{path.stem}_boxes.csv"
         if csv.is_file():
             return read_boxes_csv(csv)
         cache.mkdir(parents=True, exist_ok=True)
-        process_video(path, None, boxes_csv=csv, progress=False)
+        process_video(path, None, tables={"csv": csv}, progress=False)
         return read_boxes_csv(csv)
     return process_video(path, None, progress=False)
 
@@ -68,7 +68,7 @@ def bottom_centres(xyxy: np.ndarray) -> np.ndarray:
 
 
 def compare(path: Path, cam, cache: Path | None) -> dict:
-    from vehicle_detection.autocamera import estimate_birds_eye_from_video
+    from vehicle_detection.road.autocamera import estimate_birds_eye_from_video
 
     auto, estimate = estimate_birds_eye_from_video(path)
     print(f"\n== {path.name}")
@@ -110,9 +110,9 @@ def compare(path: Path, cam, cache: Path | None) -> dict:
 def highway(path: Path, cache: Path | None, figure: Path | None) -> None:
     from scipy.stats import spearmanr
 
-    from vehicle_detection.autocamera import estimate_birds_eye_from_video, road_figure
-    from vehicle_detection.lanes import DistanceTracker
-    from vehicle_detection.video import probe_video, read_frames
+    from vehicle_detection.road.autocamera import estimate_birds_eye_from_video, road_figure
+    from vehicle_detection.road.distance import DistanceTracker
+    from vehicle_detection.io.video import probe_video, read_frames
 
     print(f"\n== {path.name} (no calibration exists)")
     auto, estimate = estimate_birds_eye_from_video(path)
@@ -125,7 +125,7 @@ def highway(path: Path, cache: Path | None, figure: Path | None) -> None:
     print(f"a lane drawn in {sum(lane is not None for lane in lanes)} of {n} frames ({fresh} fitted on the frame itself, "
           "the others the last good fit, kept up to 5 frames)")
     # where the lines are visible: the frames whose own paint shows both lines of the lane (no neighbours pooled)
-    from vehicle_detection.autocamera import frame_lines, paint_segments
+    from vehicle_detection.road.autocamera import frame_lines, paint_segments
 
     w, h = auto.image_size
     width = np.polyval(estimate.right_line, h) - np.polyval(estimate.left_line, h)
@@ -167,7 +167,7 @@ def highway(path: Path, cache: Path | None, figure: Path | None) -> None:
         print("  no track approaches by 5 m or more")
     if figure is not None:
         from vehicle_detection.detections import Detections
-        from vehicle_detection.plots import save_figure
+        from vehicle_detection.viz.plots import save_figure
 
         t, fr, d = max(approaching, key=lambda a: len(a[1])) if approaching else (None, None, None)
         picks = [int(fr[0]), int(fr[len(fr) // 2]), int(fr[-1])] if t is not None else [0, n // 2, n - 1]

@@ -2,7 +2,7 @@
 
     python tools/sweep_features.py --data-dir ../shared/data [--subsample N] [--jobs 2] [--json]
 
-The configurations are :func:`vehicle_detection.plots.showcase_configs` (the classic RGB / HLS /
+The configurations are :func:`vehicle_detection.viz.plots.showcase_configs` (the classic RGB / HLS /
 YCrCb HOG choices, signed orientations and the embedded model's configuration): a curated list,
 where ``vehicle-detection sweep`` scores the product of the options it is given.
 Each is scored by :func:`vehicle_detection.classifier.sweep` with the library's default C;
@@ -27,9 +27,10 @@ def main(argv=None) -> int:
 
     import numpy as np
 
-    from vehicle_detection import plots
-    from vehicle_detection.classifier import DEFAULT_C, load_default_model, split_indices, sweep
-    from vehicle_detection.data import load_dataset
+    from vehicle_detection.viz import plots
+    from vehicle_detection.classifier import DEFAULT_C, load_default_model
+    from vehicle_detection.training.fit import split_indices, sweep
+    from vehicle_detection.training.data import load_dataset
 
     ds = load_dataset(args.data_dir)
     if args.subsample and args.subsample < len(ds):

@@ -17,6 +17,7 @@ is compiled here as usual.
 
 from __future__ import annotations
 
+import importlib
 import os
 import subprocess
 import sys
@@ -27,6 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from . import _jit
+from .classifier import load_default_model
+from .features import extract_features
+from .search import _band, _score_band, _working_frame, search
 
 __all__ = ["compile_search_kernels"]
 
@@ -49,8 +53,6 @@ _REFINE_KERNELS = (
 
 
 def _module(name: str):
-    import importlib
-
     return importlib.import_module(f"{__package__}.{name}")  # the module, not the package's lazy names
 
 
@@ -93,8 +95,6 @@ def _without(kernels):
 
 
 def _blank_band(model):
-    from .search import _band, _working_frame
-
     plan = model.detector_config.plan
     work, _ = _working_frame(np.zeros((720, 320, 3), np.uint8), plan)
     for s in plan.scales:
@@ -106,14 +106,10 @@ def _blank_band(model):
 
 def _compile_main(model) -> None:
     """This process's half: every kernel but the HOG blocks', by the real code path, nothing replaced."""
-    from .search import _score_band
-
     band = _blank_band(model)
     if band is not None:
         _score_band(band, model, reuse=False, hog_blocks=False)
     if model.box_regressor is not None:
-        from .features import extract_features
-
         side = model.config.window
         features = extract_features(np.zeros((1, side, side, 3), np.uint8), model.config, parallel=False)
         model.box_regressor.offsets(features)
@@ -155,8 +151,5 @@ def compile_search_kernels(model) -> None:
 
 def _helper() -> None:
     """The helper process's half: a real search of a blank frame with the main half's kernels as no-ops."""
-    from .classifier import load_default_model
-    from .search import search
-
     with _without(_MAIN_KERNELS):  # this process only
         search(np.zeros((720, 320, 3), np.uint8), load_default_model())

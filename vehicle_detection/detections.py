@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .errors import require
 from .geometry import MAX_COORD, as_boxes, box_area
 
-__all__ = ["Detections"]
+__all__ = ["Detections", "to_supervision", "from_supervision", "score_to_confidence"]
 
 
 def _readonly(arr: np.ndarray) -> np.ndarray:
@@ -283,8 +284,6 @@ class Detections:
         >>> d.to_pandas().to_dict("records")
         [{'frame': 7, 'x1': 10, 'y1': 20, 'x2': 74, 'y2': 84, 'track_id': 3, 'score': 0.5}]
         """
-        from ._optional import require
-
         pd = require("pandas", "pandas", "Detections.to_pandas()")
         clash = [k for k in self.data if k in ("frame", "x1", "y1", "x2", "y2", "track_id", "score")]
         if clash:
@@ -304,16 +303,98 @@ class Detections:
     def to_supervision(self):
         """This table as a ``supervision.Detections`` (needs ``pip install "vehicle-detection[supervision]"``).
 
-        ``confidence`` is the score mapped into 0..1 (:func:`~vehicle_detection.formats.score_to_confidence`);
-        the score itself travels in ``data["score"]``. See :func:`vehicle_detection.formats.to_supervision`.
+        ``confidence`` is the score mapped into 0..1 (:func:`score_to_confidence`); the score
+        itself travels in ``data["score"]``. See :func:`to_supervision`.
         """
-        from .formats import to_supervision
-
         return to_supervision(self)
 
     @classmethod
     def from_supervision(cls, sv_detections, frame: int | None = None) -> Detections:
-        """A table from a ``supervision.Detections`` (see :func:`vehicle_detection.formats.from_supervision`)."""
-        from .formats import from_supervision
-
+        """A table from a ``supervision.Detections`` (see :func:`from_supervision`)."""
         return from_supervision(sv_detections, frame)
+
+
+# --- supervision ------------------------------------------------------------------------------------
+#
+# A box's ``score`` is not a probability, and not even one quantity: a search window's score is
+# its SVM margin (about 0.3 to 3 with the embedded model), a box of an image or of a track is the
+# peak heat of its blob (about 3 to 200). supervision's users expect ``confidence`` in 0..1
+# (annotators print it as a fraction, trackers and filters take thresholds such as 0.25), so
+# to_supervision maps the score with score_to_confidence, the "softsign"
+# ``0.5 + 0.5 * s / (1 + |s|)``: increasing, 0.5 at a score of 0, never exactly 0 or 1 for a
+# finite score, so the order of the boxes survives (a logistic would round every tracked box's
+# heat to 1.0 and tie them). It is a squashing, not a calibration. The score itself travels in
+# ``data["score"]``, and from_supervision takes it back from there exactly. The MOT and COCO
+# files and the Parquet table keep the score as it is.
+
+
+def score_to_confidence(score) -> np.ndarray:
+    """A score mapped into 0..1 for supervision's ``confidence``: ``0.5 + 0.5 * s / (1 + |s|)``.
+
+    Increasing in the score, 0.5 at 0: a squashing that keeps the boxes' order, not a
+    calibration (``confidence > 0.5`` only says ``score > 0``).
+
+    Parameters
+    ----------
+    score : array_like of float, shape (n,)
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        In (0, 1) for finite scores.
+
+    Examples
+    --------
+    >>> score_to_confidence([-1.0, 0.0, 1.0, 3.0]).tolist()
+    [0.25, 0.5, 0.75, 0.875]
+    """
+    s = np.asarray(score, dtype=np.float64)
+    return 0.5 + 0.5 * s / (1.0 + np.abs(s))
+
+
+def to_supervision(detections: Detections):
+    """A ``supervision.Detections`` of the boxes.
+
+    ``xyxy`` (float), ``confidence`` the score mapped into 0..1 by :func:`score_to_confidence`,
+    ``tracker_id`` (None when untracked), ``class_id`` 0 (car), and ``data``: ``"frame"``,
+    ``"score"`` (the score as it is) and the other data columns.
+    """
+    sv = require("supervision", "supervision", "Detections.to_supervision()")
+    n = len(detections)
+    data = {"frame": np.asarray(detections.frame), "score": np.asarray(detections.score, np.float64)}
+    data.update({k: np.asarray(v) for k, v in detections.data.items()})
+    return sv.Detections(
+        xyxy=detections.xyxy.astype(np.float64),
+        confidence=score_to_confidence(detections.score),
+        class_id=np.zeros(n, dtype=int),
+        tracker_id=None if detections.track_id is None else detections.track_id.astype(int),
+        data=data,
+    )
+
+
+def from_supervision(sv_detections, frame: int | None = None) -> Detections:
+    """A :class:`Detections` from a ``supervision.Detections``.
+
+    Boxes are rounded to whole pixels (halves up); ``score`` is ``data["score"]`` when present
+    (what :func:`to_supervision` stores), else ``confidence`` as it is (another detector's
+    confidence is its score; 1.0 when None); ``tracker_id`` becomes ``track_id``; ``frame`` is
+    ``data["frame"]`` when present, else ``frame`` (default 0). Other 1-D ``data`` columns are kept.
+    """
+    xyxy = np.floor(np.asarray(sv_detections.xyxy, dtype=np.float64).reshape(-1, 4) + 0.5).astype(np.int64)
+    n = len(xyxy)
+    conf = sv_detections.confidence
+    data = dict(getattr(sv_detections, "data", {}) or {})
+    frames = data.pop("frame", None)
+    if frames is None:
+        frames = 0 if frame is None else frame
+    scores = data.pop("score", None)
+    if scores is None:
+        scores = np.ones(n) if conf is None else conf
+    ids = sv_detections.tracker_id
+    return Detections(
+        xyxy,
+        score=np.asarray(scores, np.float64),
+        track_id=None if ids is None else np.asarray(ids, np.int64),
+        frame=frames,
+        data={k: np.asarray(v) for k, v in data.items() if np.ndim(v) == 1 and len(v) == n},
+    )

@@ -23,16 +23,19 @@ import itertools
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import closing
 
 import numpy as np
 
+from ._warmup import compile_search_kernels
 from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
-from .images import as_image, as_rgb_uint8
-from .overlays import Overlays, active_area, mask_integral, mask_share
+from .horizon import TOLERANCE, estimate_horizon
+from .io.images import as_image, as_rgb_uint8
+from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat
 
@@ -48,8 +51,6 @@ MASKED_SHARE = 0.35
 def _footage_overlays(first: list) -> Overlays | None:
     """The overlays of a video's first frames, measured on those up to the first that is not RGB
     ``uint8`` of the first one's shape (the search reports that one, where it always has)."""
-    from .overlays import find_overlays
-
     good: list[np.ndarray] = []
     for frame in first:
         frame = np.asarray(frame)
@@ -125,8 +126,6 @@ class Detector:
 
     def _moved_to(self, estimate: float | None) -> float | None:
         """The horizon to search at for an estimate: None when there is none or it is the reference's."""
-        from .horizon import TOLERANCE
-
         if estimate is None or abs(estimate - self.config.plan.reference_horizon) <= TOLERANCE:
             return None
         return estimate
@@ -158,8 +157,6 @@ class Detector:
             state.overlays = _footage_overlays(first)
             state.overlays_searched = True
         if horizon and not state.horizon_searched:
-            from .horizon import estimate_horizon
-
             cut = state.overlays if overlays else None
             pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
             state.horizon = self._moved_to(estimate_horizon(pictures, min_frames=min(3, len(first))))
@@ -322,8 +319,6 @@ class Detector:
         searches are searched around the tracks live when the frame is submitted (the tracker
         then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
         """
-        from contextlib import closing
-
         tracker = tracker or self.new_tracker()
         lag = max(0, self.config.tracker.min_hits - 1)
         held: deque = deque()  # [frame, index, detections], oldest first
@@ -332,7 +327,7 @@ class Detector:
             frame, _, found = held.popleft()
             return frame, found[np.argsort(found.track_id, kind="stable")]
 
-        with closing(self._steps(frames, tracker, workers)) as steps:
+        with closing(self.steps(frames, tracker, workers)) as steps:
             for frame, index, found, fill in steps:
                 for entry in held if len(fill) else ():
                     extra = fill.at_frame(entry[1])
@@ -344,7 +339,7 @@ class Detector:
         while held:
             yield release()
 
-    def _steps(
+    def steps(
         self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int
     ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
         """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
@@ -352,10 +347,8 @@ class Detector:
         The next ``workers`` frames are searched in a thread pool meanwhile. ``backfill`` is
         the tracker's back-fill after the frame (boxes for earlier frames of newly confirmed
         tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
-        (:func:`~vehicle_detection.batch.track_chunk`) keeps the steps to join them later.
+        (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
         """
-        from ._warmup import compile_search_kernels
-
         compile_search_kernels(self.model)  # on a fresh install, on both cores
         det, frames = self.for_footage(iter(frames), tracker)
 

@@ -2,10 +2,16 @@
 
 Every error that a user can cause derives from :class:`VehicleDetectionError`; the command-line
 interface prints such an error as one line on stderr and exits with the code in ``exit_code``.
-Anything else that escapes is a bug.
+Anything else that escapes is a bug. :func:`require` imports an optional dependency, or raises
+:class:`MissingDependencyError` naming the extra that installs it (the command-line install has
+no plotting library: matplotlib comes with the ``report`` and ``notebooks`` extras, scikit-image
+with ``notebooks``).
 """
 
 from __future__ import annotations
+
+import importlib
+from types import ModuleType
 
 __all__ = [
     "VehicleDetectionError",
@@ -15,6 +21,8 @@ __all__ = [
     "OutputError",
     "DownloadError",
     "MissingDependencyError",
+    "one_line",
+    "require",
 ]
 
 
@@ -60,7 +68,6 @@ class DownloadError(VehicleDetectionError, OSError):
     exit_code = 6
 
 
-
 class MissingDependencyError(VehicleDetectionError, ImportError):
     """A feature needs an optional package that is not installed (exit status 2, like a usage error).
 
@@ -68,3 +75,43 @@ class MissingDependencyError(VehicleDetectionError, ImportError):
     """
 
     exit_code = 2
+
+
+def one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (ffmpeg and file names can bring line breaks)."""
+    return " | ".join(part.strip() for part in str(exc).splitlines() if part.strip())
+
+
+def require(module: str, extra: str, feature: str) -> ModuleType:
+    """Import ``module``, or say which extra installs it.
+
+    Parameters
+    ----------
+    module : str
+        Module to import (``"matplotlib.figure"``).
+    extra : str
+        The extra of ``vehicle-detection`` that installs it (``"report"``).
+    feature : str
+        What needs it, for the message (``"the HTML report"``).
+
+    Returns
+    -------
+    module
+
+    Raises
+    ------
+    MissingDependencyError
+        If the module (or one it needs) cannot be imported; also an ``ImportError``.
+
+    Examples
+    --------
+    >>> require("json", "report", "this example").__name__
+    'json'
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        package = (exc.name or module).split(".")[0]
+        raise MissingDependencyError(
+            f"{feature} needs {package}, which is not installed: pip install \"vehicle-detection[{extra}]\""
+        ) from None

@@ -44,7 +44,7 @@ import numpy as np
 
 from ._jit import njit
 from .errors import InputError
-from .images import as_rgb_uint8
+from .io.images import as_rgb_uint8
 
 __all__ = [
     "COLOR_SPACES",
@@ -759,7 +759,7 @@ def hog_image(channel: np.ndarray, config: FeatureConfig) -> np.ndarray:
     MissingDependencyError
         Without scikit-image (``pip install "vehicle-detection[notebooks]"``).
     """
-    from ._optional import require
+    from .errors import require
 
     hog = require("skimage.feature", "notebooks", "the HOG picture (hog_image)").hog
     if config.hog_sqrt:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -215,8 +216,6 @@ def _match_small(weights: np.ndarray, valid: np.ndarray):
     matrices are a few tracks by a few blobs, so scipy is rarely imported (a quarter of a
     second at start-up).
     """
-    import math
-
     transpose = weights.shape[0] > weights.shape[1]
     w, v = (weights.T, valid.T) if transpose else (weights, valid)
     n, m = w.shape

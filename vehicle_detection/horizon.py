@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+import cv2
 import numpy as np
 
 __all__ = ["vanishing_row", "estimate_horizon", "TOLERANCE"]
@@ -43,8 +44,6 @@ def vanishing_row(frame: np.ndarray) -> float | None:
         part of the frame towards a common point (no lane lines or road edges), or when the
         crossings scatter (less than half their weight within 1.5 % of the height of the median).
     """
-    import cv2
-
     h, w = frame.shape[:2]
     if h < 16 or w < 16:
         return None

@@ -366,7 +366,7 @@ class Tracker:
     **Association.** Candidates and live tracks are matched one to one among the pairs with
     IoU >= ``match_iou``; the matching has the most pairs and, among those, the largest total
     IoU (:func:`scipy.optimize.linear_sum_assignment`), as in
-    :func:`vehicle_detection.evaluate.match_frame`.
+    :func:`vehicle_detection.metrics.detection.match_frame`.
 
     **Life cycle.** A matched track takes the blob's box into its moving average, ``hits += 1``,
     ``misses = 0``, and is confirmed once ``hits >= min_hits``. An unmatched track keeps its
@@ -448,7 +448,6 @@ class Tracker:
         """
         if not isinstance(detections, Detections):
             raise ValueError(f"detections must be a Detections; got {type(detections).__name__}")
-        cfg = self._config
         st = self._state
         hw = _frame_hw(frame_shape)
         if st.frame_shape is not None and hw != st.frame_shape:
@@ -456,6 +455,33 @@ class Tracker:
                 f"frame_shape {hw} differs from the earlier frames' {st.frame_shape}; "
                 "use a new Tracker (or reset()) for another video"
             )
+        integrated, cand, peaks = self._heat_stage(detections, hw)
+        kept, next_id = self._associate(cand, peaks)
+
+        index = st.frame_index
+        st.integrated = integrated
+        st.tracks = kept
+        st.next_id = next_id
+        st.frame_index += 1
+        st.frame_shape = hw
+        fill = [(i, b, t.track_id, t.score) for t in kept for i, b in t.backfill]
+        self._backfill = Detections(
+            _int_boxes([b for _, b, _, _ in fill]),
+            score=[sc for *_, sc in fill],
+            track_id=[tid for _, _, tid, _ in fill],
+            frame=np.array([i for i, *_ in fill], np.int64),
+        )
+        confirmed = [t for t in kept if t.confirmed]
+        return Detections(
+            _int_boxes([t.box for t in confirmed]),
+            score=[t.score for t in confirmed],
+            track_id=np.array([t.track_id for t in confirmed], np.int64),
+            frame=index,
+        )
+
+    def _heat_stage(self, detections: Detections, hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Steps 1-3: this frame's heat, integrated, and its candidate blobs ``(integrated, boxes, peaks)``."""
+        cfg, st = self._config, self._state
         win = inset_boxes(detections.xyxy, cfg.window_inset)
         weights = window_heat(detections.score, cfg.score_gain)
 
@@ -481,8 +507,12 @@ class Tracker:
         if cfg.cluster_iou > 0 and len(cand):
             cand, peaks = split_blobs(cand, peaks, win, weights, iou=cfg.cluster_iou)
             cand = vote_boxes(cand, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
+        return integrated, cand, peaks
 
-        # 4. Association and track life cycle.
+    def _associate(self, cand: np.ndarray, peaks: np.ndarray) -> tuple[list[Track], int]:
+        """Step 4: association and track life cycle: candidates matched to the live tracks;
+        ``(live tracks, next id)``."""
+        cfg, st = self._config, self._state
         tracks = st.tracks
         matched_track = np.zeros(len(tracks), dtype=bool)
         matched_cand = np.zeros(len(cand), dtype=bool)
@@ -526,24 +556,4 @@ class Tracker:
                 )
             )
             next_id += 1
-
-        index = st.frame_index
-        st.integrated = integrated
-        st.tracks = kept
-        st.next_id = next_id
-        st.frame_index += 1
-        st.frame_shape = hw
-        fill = [(i, b, t.track_id, t.score) for t in kept for i, b in t.backfill]
-        self._backfill = Detections(
-            _int_boxes([b for _, b, _, _ in fill]),
-            score=[sc for *_, sc in fill],
-            track_id=[tid for _, _, tid, _ in fill],
-            frame=np.array([i for i, *_ in fill], np.int64),
-        )
-        confirmed = [t for t in kept if t.confirmed]
-        return Detections(
-            _int_boxes([t.box for t in confirmed]),
-            score=[t.score for t in confirmed],
-            track_id=np.array([t.track_id for t in confirmed], np.int64),
-            frame=index,
-        )
+        return kept, next_id

@@ -20,7 +20,7 @@ sys.path.insert(0, str(HERE.parent))
 from test_features import numpy_hog  # noqa: E402
 
 from vehicle_detection.features import FeatureConfig, convert_color  # noqa: E402
-from vehicle_detection.images import read_image  # noqa: E402
+from vehicle_detection.io.images import read_image  # noqa: E402
 
 # (image, x, y, side): two cars, road, barrier, trees, sky, lane line, car edge.
 CROPS = [(1, 820, 400, 140), (1, 1060, 395, 160), (1, 300, 560, 96), (1, 560, 420, 64),

@@ -1,0 +1,446 @@
+"""Safe output files: never overwrite an input, never leave a half-written file that looks done.
+
+Every writer in the package goes through :func:`atomic_output`: the data are written to a hidden
+``.NAME.XXXX.partial`` file beside the destination and renamed over it only once complete, so an
+interrupted run (Ctrl-C, a crash, a kill) leaves at most a ``.partial`` file, never a truncated
+file under the final name, and an existing output being replaced stays as it was until the new
+one is complete.
+
+Several outputs of one run can be committed together with :func:`output_batch`: inside the block
+each completed output waits under its ``.partial`` name, and all are renamed into place at the
+end of the block, or all are deleted if the block fails, leaving every previous output intact.
+
+Only regular files are ever replaced: an existing output that is a symlink (even to a regular
+file), a FIFO, a device (``/dev/null``) or a socket is refused, with or without ``overwrite``,
+because renaming over it would replace the special file itself.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import os
+import signal
+import stat
+import tempfile
+import threading
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+
+from ..errors import InputError, OutputError, VehicleDetectionError
+
+__all__ = [
+    "atomic_output",
+    "check_output_path",
+    "check_outputs",
+    "refuse_inputs",
+    "umask",
+    "output_batch",
+    "interrupt_on_signals",
+    "read_text",
+    "input_file",
+    "PARTIAL_SUFFIX",
+    "MAX_TEXT_BYTES",
+]
+
+PARTIAL_SUFFIX = ".partial"
+
+
+def umask() -> int:
+    """The process's file mode creation mask (read without changing it)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _special_kind(dest: Path) -> str | None:
+    """What ``dest`` is when it exists and is not a regular file (a symlink counts); else None."""
+    try:
+        mode = os.lstat(dest).st_mode
+    except OSError:  # missing (or unreadable: the write itself will say so)
+        return None
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISLNK(mode):
+        return "a symlink"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    return "not a regular file"
+
+
+def _refuse_special(dest: Path) -> None:
+    kind = _special_kind(dest)
+    if kind is not None:
+        raise OutputError(f"{dest}: output exists and is {kind}, not a regular file; refusing to replace it")
+
+
+def _write_error(dest: Path, exc: OSError) -> OutputError:
+    return OutputError(f"{dest}: cannot write output: {exc.strerror or exc}")
+
+
+def check_output_path(
+    dest: str | os.PathLike, *, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = ()
+) -> Path:
+    """Refuse an output path that is an input, a folder, a special file, or an existing file.
+
+    Parameters
+    ----------
+    dest : path-like
+        Where the output will be written.
+    overwrite : bool
+        Allow replacing an existing regular file at ``dest`` (never an input, never a symlink,
+        FIFO, device or socket).
+    inputs : iterable of path-like
+        Files the run reads; ``dest`` may not resolve to any of them, whatever ``overwrite`` says.
+
+    Returns
+    -------
+    Path
+        ``dest`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    OutputError
+        If ``dest`` is an input, a folder, below a file instead of a folder, exists and is not a
+        regular file (symlinks included, dangling or not), or exists and ``overwrite`` is false.
+    """
+    dest = Path(dest)
+    for src in inputs:
+        src = Path(src)
+        if dest.resolve() == src.resolve() or _same_file(dest, src):
+            raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
+    if dest.is_dir():
+        raise OutputError(f"{dest}: output path is a folder; give a file name")
+    _refuse_special(dest)
+    for folder in dest.parents:  # the nearest existing ancestor must be a folder
+        if folder.exists() or folder.is_symlink():
+            if not folder.is_dir():
+                raise OutputError(f"{dest}: cannot write output here: {folder} is a file, not a folder")
+            break
+    if dest.exists() and not overwrite:
+        raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
+    return dest
+
+
+def check_outputs(
+    outputs: Iterable[str | os.PathLike], *, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = ()
+) -> list[Path]:
+    """:func:`check_output_path` for every output of one run, and no two outputs the same file.
+
+    Returns
+    -------
+    list of Path
+        The outputs, in order.
+
+    Raises
+    ------
+    OutputError
+        As :func:`check_output_path`, or if two outputs name the same file.
+    """
+    outputs, inputs = [Path(o) for o in outputs], list(inputs)
+    seen: dict[Path, Path] = {}
+    for out in outputs:
+        key = out.resolve()
+        if key in seen:
+            raise OutputError(f"{out}: named for two outputs of one run ({seen[key]} too); each output needs a file of its own")
+        seen[key] = out
+        check_output_path(out, overwrite=overwrite, inputs=inputs)
+    return outputs
+
+
+def refuse_inputs(dest: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:
+    """Refuse an output folder that is, contains or lies inside one of ``inputs``.
+
+    Raises
+    ------
+    OutputError
+        Naming the folder and the input.
+    """
+    d = Path(os.path.abspath(dest))
+    for src in inputs:
+        s = Path(os.path.abspath(src))
+        if s == d or d in s.parents or s in d.parents:
+            raise OutputError(f"{dest}: output folder would overwrite or lie inside the input {src}; choose another --out")
+
+
+# --- committing outputs ------------------------------------------------------------------------
+
+
+class _Renaming:
+    """Set while finished outputs are being renamed into place (see interrupt_on_signals)."""
+
+    active = 0
+    pending: int | None = None
+
+
+def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
+    """Rename each finished temporary file over its destination, checking every one first.
+
+    Raises OutputError (and deletes every temporary file not yet renamed) if a destination has
+    become unacceptable meanwhile or a rename fails.
+    """
+    done = 0
+    try:
+        for tmp, dest, overwrite in entries:  # all checks before the first rename
+            _refuse_special(dest)
+            if dest.exists() and not overwrite:
+                raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
+            try:
+                os.chmod(tmp, 0o666 & ~umask())  # mkstemp creates 0600; give the usual permissions
+            except OSError as exc:
+                raise _write_error(dest, exc) from None
+        _Renaming.active += 1
+        try:
+            for tmp, dest, _ in entries:
+                try:
+                    os.replace(tmp, dest)
+                except OSError as exc:
+                    raise _write_error(dest, exc) from None
+                done += 1
+        finally:
+            _Renaming.active -= 1
+    except BaseException:
+        for tmp, _, _ in entries[done:]:
+            with suppress(OSError):
+                tmp.unlink()
+        raise
+    if _Renaming.pending is not None and not _Renaming.active:
+        _Renaming.pending = None
+        raise KeyboardInterrupt  # a signal arrived during the renames: act on it now
+
+
+class _Batch:
+    def __init__(self) -> None:
+        self.entries: list[tuple[Path, Path, bool]] = []
+        self.created: list[Path] = []  # folders made for the outputs, outermost first
+
+
+_BATCH: contextvars.ContextVar[_Batch | None] = contextvars.ContextVar("vehicle_detection_output_batch", default=None)
+
+
+@contextmanager
+def output_batch() -> Iterator[None]:
+    """Commit every :func:`atomic_output` completed inside the block together, at its end.
+
+    Inside the block a finished output stays under its hidden ``.partial`` name. When the block
+    succeeds, every destination is checked again and all are renamed into place (in the order
+    they were finished); when it raises (including ``KeyboardInterrupt``), every temporary file
+    is deleted, so the previous outputs, if any, are left exactly as they were, and folders
+    created for the outputs are removed again if empty. Nested batches join the outer one.
+    """
+    if _BATCH.get() is not None:
+        yield
+        return
+    batch = _Batch()
+    token = _BATCH.set(batch)
+    try:
+        yield
+    except BaseException:
+        _BATCH.reset(token)
+        for tmp, _, _ in batch.entries:
+            with suppress(OSError):
+                tmp.unlink()
+        for folder in reversed(batch.created):
+            with suppress(OSError):
+                folder.rmdir()  # only if empty
+        raise
+    _BATCH.reset(token)
+    _commit(batch.entries)
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """Create ``folder`` and missing ancestors; return those created, outermost first."""
+    missing = []
+    for f in (folder, *folder.parents):
+        if f.exists() or f.is_symlink():
+            break
+        missing.append(f)
+    folder.mkdir(parents=True, exist_ok=True)
+    return list(reversed(missing))
+
+
+@contextmanager
+def atomic_output(
+    dest: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> Iterator[Path]:
+    """Yield a temporary path beside ``dest``; rename it to ``dest`` when the block succeeds.
+
+    Missing parent folders are created. On any exception (including ``KeyboardInterrupt``) the
+    temporary file is deleted and ``dest`` is left as it was: an existing file being replaced
+    is only replaced by the finished new one. Inside :func:`output_batch` the rename waits for
+    the end of the batch.
+
+    Parameters
+    ----------
+    dest : path-like
+        Final output path.
+    overwrite, inputs
+        As for :func:`check_output_path`.
+
+    Yields
+    ------
+    Path
+        The temporary file to write (it exists, empty). Writers that infer the format from the
+        file name (ffmpeg) must be told the format explicitly: the name ends in ``.partial``.
+
+    Raises
+    ------
+    OutputError
+        As :func:`check_output_path`; also when writing fails with an ``OSError`` (disk full,
+        quota, read-only file system, permission denied...): the message names ``dest``.
+    """
+    dest = check_output_path(dest, overwrite=overwrite, inputs=inputs)
+    batch = _BATCH.get()
+    try:
+        created = _make_parents(dest.parent)
+        if batch is not None:
+            batch.created.extend(created)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent)
+    except OSError as exc:
+        raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        try:
+            yield tmp
+        except VehicleDetectionError:
+            raise
+        except OSError as exc:  # ENOSPC, EDQUOT, EROFS, EACCES, EIO... while writing
+            raise _write_error(dest, exc) from exc
+        if batch is not None:
+            batch.entries.append((tmp, dest, overwrite))
+        else:
+            _commit([(tmp, dest, overwrite)])
+    except BaseException:
+        with suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+# --- signals -----------------------------------------------------------------------------------
+
+
+@contextmanager
+def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP")) -> Iterator[None]:
+    """Within the block, SIGINT, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` like Ctrl-C.
+
+    So ``timeout``, ``docker stop``, systemd and a closed terminal get the same clean-up as
+    Ctrl-C: temporary files deleted, previous outputs left intact. Only the first signal raises
+    (a second one during the clean-up is ignored), and a signal that arrives while finished
+    outputs are being renamed into place is acted on once the renames are done. Installed only
+    when called from the main thread; the previous handlers are restored on exit.
+    """
+    nums = [getattr(signal, name) for name in signals if hasattr(signal, name)]
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = False
+
+    def handler(signum, frame):
+        nonlocal fired
+        if fired:
+            return
+        if _Renaming.active:
+            _Renaming.pending = signum
+            return
+        fired = True
+        raise KeyboardInterrupt
+
+    previous = {}
+    try:
+        for num in nums:
+            previous[num] = signal.signal(num, handler)
+        yield
+    finally:
+        for num, old in previous.items():
+            signal.signal(num, old if old is not None else signal.SIG_DFL)
+        _Renaming.pending = None
+
+
+# --- reading -----------------------------------------------------------------------------------
+
+
+#: Largest text input read (a labels, camera or boxes file), bytes.
+MAX_TEXT_BYTES = 256 * 1024 * 1024
+
+
+def input_file(path: str | os.PathLike, what: str, error: type[InputError] = InputError) -> os.stat_result:
+    """Check that ``path`` (a symlink is followed) is a regular file that can be read.
+
+    A device (``/dev/zero``), a FIFO or a socket would be read forever, or block: they are
+    refused before they are opened, as are folders and missing files.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file is, for messages (``"camera file"``).
+    error : type
+        The :class:`InputError` subclass raised (:class:`~vehicle_detection.errors.ModelError`
+        for model files).
+
+    Returns
+    -------
+    os.stat_result
+        Of the file (after following symlinks).
+    """
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"{path}: is a folder, not a regular file ({what} expected)")
+    if not stat.S_ISREG(st.st_mode):
+        kind = _special_kind(path.resolve()) or "not a regular file"
+        raise error(f"{path}: is {kind}, not a regular file ({what} expected)")
+    return st
+
+
+def read_text(path: str | os.PathLike, what: str, kind: str, *, encoding: str = "utf-8") -> str:
+    """Read a text input, turning every failure into an :class:`InputError` naming the file.
+
+    Parameters
+    ----------
+    path : path-like
+        A regular file (or a symlink to one) of at most :data:`MAX_TEXT_BYTES`.
+    what : str
+        What the file is, for messages (``"annotation file"``).
+    kind : str
+        Its expected format, for the hint on undecodable bytes (``"JSON"``).
+    encoding : str
+        ``"utf-8-sig"`` also accepts a byte-order mark.
+    """
+    path = Path(path)
+    st = input_file(path, what)
+    if st.st_size > MAX_TEXT_BYTES:
+        raise InputError(f"{path}: {what} of {st.st_size} bytes is larger than the {MAX_TEXT_BYTES // 2**20} MiB a {kind} input may be")
+    try:
+        with open(path, encoding=encoding, newline=None) as fh:
+            return fh.read(MAX_TEXT_BYTES + 1)
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not a {what}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}); is this a {kind} file?") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None

@@ -1,0 +1,474 @@
+"""Many inputs at once: local processes (``jobs``) or a dask.distributed cluster.
+
+:func:`detect_many` is what ``vehicle-detection detect INPUT...`` runs when given several inputs
+(or globs, or a folder of videos), or any of the batch-only options (``--jobs``,
+``--skip-existing``, ``--table``, ``--scheduler``, ``--chunk-frames``).
+
+* Each input is processed by :func:`~vehicle_detection.pipeline.inputs.run_input`, as
+  ``detect INPUT`` processes one (same options, same outputs, same default names, in
+  ``out_dir`` when given), its outputs committed together.
+* A failing input is reported (:class:`~vehicle_detection.pipeline.inputs.InputResult` with
+  ``error``) and does not stop the others.
+* ``jobs=N`` runs N worker processes and splits the machine's cores between them: numba threads
+  (``NUMBA_NUM_THREADS`` / ``numba.set_num_threads``), the detector's search threads and the
+  codec threads (PyAV) are ``max(1, cores // N)`` in each.
+* With a dask ``client`` (or a scheduler's address), one task per input runs on the cluster;
+  with ``chunk_frames`` and no video, a long video is split into chunks of that many frames,
+  processed in order, each continuing the previous chunk's tracker state, and joined with the
+  tracker's back-fill exactly as a local run (:func:`track_chunk`, :func:`join_chunks`).
+
+A worker process sets its thread counts (:func:`~vehicle_detection.pipeline._threads.init_worker`,
+from a module that imports nothing heavy) before numba is loaded in it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import multiprocessing
+import os
+import time
+from collections.abc import Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..deprecation import old_keywords
+from ..detections import Detections
+from ..detector import Detector
+from ..errors import InputError, UsageError, VehicleDetectionError, one_line
+from ..io import interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
+from ..io.images import list_images
+from ..io.video import probe_video, read_frames
+from ..tracker import Tracker, TrackerState
+from ._threads import init_worker, set_numba_threads
+from .inputs import InputOptions, InputResult, Outputs, check_input_outputs, default_outputs, expand_inputs, run_input
+from .video import SEARCH_WORKERS
+
+__all__ = ["detect_many", "track_chunk", "join_chunks", "detect_chunked"]
+
+
+@dataclass(frozen=True)
+class _Task:
+    """Everything a worker needs for one input (picklable)."""
+
+    path: Path
+    kind: str  # "video", "image" or "folder"
+    outputs: Outputs
+    options: InputOptions
+    detector: Detector
+    threads: int | None = None
+
+    def images(self) -> list[Path]:
+        """The images of a folder input (in the frame range), [] when they cannot be listed."""
+        if self.kind != "folder":
+            return [self.path] if self.kind == "image" else []
+        start, end = self.options.frames
+        try:
+            return list_images(self.path)[start:end]
+        except VehicleDetectionError:
+            return []
+
+    def complete(self) -> bool:
+        """Whether every output is there already (outputs are committed together, so they are complete)."""
+        files = self.outputs.files(self.kind, self.images())
+        return bool(files) and all(p.is_file() for p in files)
+
+
+_DETECTORS: dict = {}
+
+
+def _detector(model: str | os.PathLike | None, horizon: float | str | None) -> Detector:
+    """The detector of a model file at a horizon, loaded once per process."""
+    key = (None if model is None else str(model), horizon)
+    if key not in _DETECTORS:
+        _DETECTORS[key] = Detector.load(model, horizon=horizon)
+    return _DETECTORS[key]
+
+
+def _run_task(task: _Task) -> InputResult:
+    """Process one input in this process; errors become the result's ``error`` (interrupts propagate)."""
+    t = time.perf_counter()
+    try:
+        with interrupt_on_signals():  # in a worker process: SIGTERM from the parent cleans up as Ctrl-C
+            return run_input(task.path, task.options, detector=task.detector, outputs=task.outputs, threads=task.threads)
+    except VehicleDetectionError as exc:
+        return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code)
+    except (Exception, KeyboardInterrupt) as exc:  # noqa: B902  (an interrupted worker reports it)
+        if isinstance(exc, KeyboardInterrupt) and multiprocessing.parent_process() is None:
+            raise
+        text = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"internal error: {type(exc).__name__}: {one_line(exc)}"
+        code = 130 if isinstance(exc, KeyboardInterrupt) else 1
+        return InputResult(task.path, error=f"{task.path}: {text}", seconds=time.perf_counter() - t, exit_code=code)
+
+
+def _message(path: Path, exc: BaseException) -> str:
+    text = one_line(exc)
+    return text if text.startswith(str(path)) else f"{path}: {text}"
+
+
+# --- chunks of one video (tracker state across chunk borders) ------------------------------------
+
+
+def track_chunk(
+    path: str | os.PathLike,
+    start: int,
+    end: int | None,
+    state: TrackerState | None = None,
+    *,
+    detector: Detector | None = None,
+    model: str | os.PathLike | None = None,
+    horizon: float | str | None = None,
+    workers: int | None = None,
+):
+    """Search and track decoded frames ``start <= index < end`` of a video, continuing ``state``.
+
+    Returns ``(steps, state)``: ``steps`` is one ``(index, found, backfill)`` triple per frame
+    (decoded index, the tracker's output and its back-fill for earlier frames), ``state`` the
+    :class:`~vehicle_detection.tracker.TrackerState` after the last frame, to pass to the next
+    chunk. :func:`join_chunks` turns the steps of all chunks, in order, into the table that
+    :func:`~vehicle_detection.pipeline.video.process_video` returns. The detector is ``detector``, else the
+    one of the model file ``model`` (the embedded model for None) at ``horizon``.
+    """
+    detector = detector or _detector(model, horizon)
+    if state is None:
+        state = TrackerState(frame_index=start)
+    if state.frame_index != start:
+        raise ValueError(f"the tracker state continues at frame {state.frame_index}, not at {start}; chunks must follow each other")
+    tracker = Tracker(detector.config.tracker, state)
+    frames = read_frames(path)
+    try:
+        # The first chunk estimates the camera's horizon; the state carries it to the others.
+        steps = [
+            (index, found, backfill)
+            for _, index, found, backfill in detector.steps(itertools.islice(frames, start, end), tracker, workers or SEARCH_WORKERS)
+        ]
+    finally:
+        frames.close()
+    return steps, tracker.state.copy()
+
+
+def join_chunks(steps: Sequence, lag: int):
+    """The per-frame ``(index, found, backfill)`` steps of a whole video (or range) -> one table.
+
+    Exactly what :meth:`~vehicle_detection.detector.Detector.track_frames` reports: each frame's
+    boxes, then the back-fill of the ``lag`` following frames that falls on it, sorted by track
+    id (stable).
+    """
+    out = []
+    for j, (index, found, _) in enumerate(steps):
+        parts = found
+        for i in range(j + 1, min(j + lag, len(steps) - 1) + 1):
+            fill = steps[i][2]
+            if len(fill):
+                extra = fill.at_frame(index)
+                if len(extra):
+                    parts = Detections.concatenate([parts, extra])
+        out.append(parts[np.argsort(parts.track_id, kind="stable")])
+    return Detections.concatenate(out) if out else Detections.empty(tracked=True)
+
+
+def detect_chunked(
+    path: str | os.PathLike,
+    chunk_frames: int,
+    *,
+    client=None,
+    detector: Detector | None = None,
+    model: str | os.PathLike | None = None,
+    horizon: float | str | None = None,
+    start: int = 0,
+    end: int | None = None,
+) -> Detections:
+    """Boxes of a video processed in chunks of ``chunk_frames`` frames, in order (locally, or as a
+    chain of dask tasks on ``client``); identical to :func:`~vehicle_detection.pipeline.video.process_video`.
+    The detector is as for :func:`track_chunk`."""
+    n = probe_video(path).n_frames
+    stop = n if end is None else (min(end, n) if n is not None else end)
+    if stop is None:
+        raise InputError(f"{path}: the frame count is unknown; cannot split into chunks (give --end)")
+    bounds = [(a, min(a + chunk_frames, stop)) for a in range(start, stop, chunk_frames)]
+    detector = detector or _detector(model, horizon)
+    lag = max(0, detector.config.tracker.min_hits - 1)
+    if client is None:
+        steps, state = [], None
+        for a, b in bounds:
+            part, state = track_chunk(path, a, b, state, detector=detector)
+            steps += part
+        return join_chunks(steps, lag)
+    futures, state = [], None
+    for a, b in bounds:
+        fut = client.submit(_chunk_task, str(path), a, b, state, detector, pure=False)
+        futures.append(fut)
+        state = client.submit(_second, fut, pure=False)
+    results = client.gather(futures)
+    steps = [s for part, _ in results for s in part]
+    return join_chunks(steps, lag)
+
+
+def _chunk_task(path, a, b, state, detector):
+    return track_chunk(path, a, b, state, detector=detector)
+
+
+def _second(pair):
+    return pair[1]
+
+
+def _run_chunked(task: _Task, client, chunk_frames: int) -> InputResult:
+    """One video as chunks on the cluster; the tables are written here (the client)."""
+    t = time.perf_counter()
+    start, end = task.options.frames
+    try:
+        if "coco" in task.outputs.tables:
+            raise InputError(f"{task.path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
+        if "lanes" in task.outputs.tables:
+            raise UsageError(f"{task.path}: lanes are not found in chunks (no --chunk-frames with --lanes)")
+        check = [task.path, *task.options.inputs]
+        check_input_outputs(task.kind, task.outputs, [], overwrite=task.options.overwrite, inputs=check)
+        table = detect_chunked(task.path, chunk_frames, client=client, detector=task.detector, start=start, end=end)
+        with output_batch():
+            write_tables(task.outputs.tables, table, name=task.path.name, overwrite=task.options.overwrite, inputs=check)
+    except VehicleDetectionError as exc:
+        return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code)
+    except Exception as exc:
+        return InputResult(task.path, error=f"{task.path}: internal error: {type(exc).__name__}: {one_line(exc)}",
+                           seconds=time.perf_counter() - t, exit_code=1)
+    n_frames = _frames_in(task.path, start, end)
+    return InputResult(task.path, tuple(task.outputs.files(task.kind)), len(table), n_frames=n_frames, seconds=time.perf_counter() - t)
+
+
+def _frames_in(path: Path, start: int, end: int | None) -> int:
+    n = probe_video(path).n_frames
+    if n is None:
+        return 0
+    return max(0, min(n, end if end is not None else n) - start)
+
+
+# --- many inputs ------------------------------------------------------------------------------------
+
+
+def _legacy(kwargs: dict) -> dict:
+    """The earlier keywords (``video``, ``frames``, ``model``, ``preset``, ...) as the new objects."""
+    fields = {k: kwargs.pop(k) for k in ("video", "frames", "formats", "overwrite", "progress") if k in kwargs}
+    encoding = {k: kwargs.pop(k) for k in ("preset", "crf") if k in kwargs}
+    options = kwargs.get("options") or InputOptions()
+    if encoding:
+        fields["encoding"] = replace(options.encoding, **encoding)
+    if fields:
+        kwargs["options"] = replace(options, **fields)
+    model, horizon = kwargs.pop("model", None), kwargs.pop("horizon", None)
+    if model is not None and not Path(model).is_file():
+        raise InputError(f"{model}: model file not found")
+    if (model is not None or horizon is not None) and kwargs.get("detector") is None:
+        kwargs["detector"] = Detector.load(model, horizon=horizon)
+    if model is not None:
+        options = kwargs.get("options") or InputOptions()
+        kwargs["options"] = replace(options, inputs=(*options.inputs, Path(model)))
+    if kwargs.get("scheduler") is not None:
+        kwargs["client"] = kwargs.pop("scheduler")
+    kwargs.pop("scheduler", None)
+    return kwargs
+
+
+@old_keywords(("video", "frames", "formats", "overwrite", "progress", "preset", "crf", "model", "horizon", "scheduler"), _legacy)
+def detect_many(
+    paths: Iterable[str | os.PathLike] | str | os.PathLike,
+    out_dir: str | os.PathLike | None = None,
+    options: InputOptions | None = None,
+    *,
+    detector: Detector | None = None,
+    jobs: int = 1,
+    skip_existing: bool = False,
+    table: str | os.PathLike | None = None,
+    client=None,
+    chunk_frames: int | None = None,
+    on_result=None,
+) -> list[InputResult]:
+    """Detect vehicles in many videos, images and folders of images.
+
+    Parameters
+    ----------
+    paths : path-like or iterable of them
+        Files, glob patterns and folders (see :func:`~vehicle_detection.pipeline.inputs.expand_inputs`).
+    out_dir : path-like, optional
+        Write each input's outputs here under the default names (else beside each input).
+    options : InputOptions, optional
+        How each input is processed and what is written for it: frames, road (camera, lanes),
+        video or tables only, table formats, encoding, overwrite, progress (one job only).
+    detector : Detector, optional
+        Defaults to ``Detector()`` (the embedded model); a detector of your own (its
+        :class:`~vehicle_detection.config.DetectorConfig`) reaches every input and worker.
+    jobs : int
+        Worker processes (the cores are shared between them; see the module notes).
+    skip_existing : bool
+        Skip an input whose outputs all exist (from an earlier run: outputs are committed
+        together, so they are complete); nothing of it is rewritten.
+    table : path-like, optional
+        Also one Parquet file (``.parquet``, needs ``pyarrow``) for all inputs, with a ``video``
+        column (the input's file name), built from the per-input tables once all are done.
+    client : dask.distributed.Client or str, optional
+        Run one task per input on this cluster (a string: the scheduler's address, to connect).
+    chunk_frames : int, optional
+        On a cluster, without video: split each video into chunks of this many frames.
+    on_result : callable, optional
+        Called with each :class:`~vehicle_detection.pipeline.inputs.InputResult` as it finishes
+        (the CLI prints them).
+
+    Returns
+    -------
+    list of InputResult
+        One per input, in input order.
+
+    Notes
+    -----
+    The earlier keywords (``video``, ``frames``, ``formats``, ``overwrite``, ``progress``,
+    ``preset``, ``crf``: now in ``options``; ``model`` and ``horizon``: now a ``detector``;
+    ``scheduler``: now ``client``) still work, with a :class:`DeprecationWarning`.
+    """
+    options = options or InputOptions()
+    paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    _check_batch(options, jobs, chunk_frames, table)
+    detector = detector or Detector()
+    tasks, results = _tasks(paths, out_dir, options, detector, progress=options.progress and jobs == 1 and client is None)
+    report = on_result or (lambda r: None)
+    if skip_existing:
+        for k in [k for k, task in tasks.items() if task.complete()]:
+            task = tasks.pop(k)
+            results[k] = InputResult(task.path, tuple(task.outputs.files(task.kind, task.images())), skipped=True)
+    for k in sorted(results):
+        report(results[k])
+    _run(tasks, jobs, client, chunk_frames, results, report)
+    ordered = [results[k] for k in range(len(results))]
+    if table is not None:
+        _write_combined(Path(table), ordered, overwrite=options.overwrite)
+    return ordered
+
+
+def _check_batch(options: InputOptions, jobs: int, chunk_frames: int | None, table) -> None:
+    if jobs < 1:
+        raise UsageError("jobs must be >= 1")
+    if chunk_frames is not None and (chunk_frames < 1 or options.video):
+        raise UsageError("chunk_frames (--chunk-frames) needs a number >= 1 and no video (--no-video): the encoder needs the whole video in one task")
+    if chunk_frames is not None and (options.road.camera is not None or options.road.lanes):
+        raise UsageError("chunk_frames (--chunk-frames) runs the detector alone: no --camera or --lanes")
+    if table is not None and Path(table).suffix.lower() != ".parquet":
+        raise UsageError(f"{table}: the table of all inputs is a Parquet file (.parquet)")
+
+
+def _tasks(paths, out_dir, options: InputOptions, detector: Detector, *, progress: bool):
+    """One task per input (in input order), and the inputs refused at once as results."""
+    tasks: dict[int, _Task] = {}
+    results: dict[int, InputResult] = {}
+    claimed: dict[Path, Path] = {}
+    options = replace(options, progress=progress)
+    for k, (p, kind, problem) in enumerate(expand_inputs(paths)):
+        if problem is not None:
+            results[k] = InputResult(p, error=problem, exit_code=3)
+            continue
+        outputs = default_outputs(p, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video)
+        for o in [outputs.annotated, *outputs.tables.values()]:
+            if o is None:
+                continue
+            key = Path(os.path.abspath(o))
+            if key in claimed:
+                raise UsageError(f"{claimed[key]} and {p} would both write {o}; give them different names or out-dirs")
+            claimed[key] = p
+        tasks[k] = _Task(p, kind, outputs, options, detector)
+    return tasks, results
+
+
+def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, results: dict, report) -> None:
+    own_client = None
+    if isinstance(client, str):
+        try:
+            from dask.distributed import Client  # an optional dependency ([distributed])
+        except ImportError:
+            raise UsageError('--scheduler needs dask.distributed: pip install "vehicle-detection[distributed]"') from None
+        client = own_client = Client(client)
+    try:
+        if client is not None:
+            _run_dask(tasks, client, chunk_frames, results, report)
+        elif jobs == 1 or len(tasks) <= 1:
+            threads = None
+            if jobs > 1:
+                threads = max(1, os.cpu_count() or 1)
+                set_numba_threads(threads)
+            for k, task in tasks.items():
+                results[k] = _run_task(replace(task, threads=threads))
+                report(results[k])
+        else:
+            _run_pool(tasks, jobs, results, report)
+    finally:
+        if own_client is not None:
+            own_client.close()
+
+
+def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None:
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    tasks = {k: replace(task, threads=threads) for k, task in tasks.items()}
+    ctx = multiprocessing.get_context("spawn")  # no fork of a process with threads (numba, PyAV)
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx, initializer=init_worker, initargs=(threads,))
+    try:
+        futures = {pool.submit(_run_task, task): k for k, task in tasks.items()}
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                k = futures[fut]
+                try:
+                    results[k] = fut.result()
+                except Exception as exc:  # a worker died (killed, out of memory)
+                    results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: worker failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
+                report(results[k])
+    except BaseException:
+        # Ctrl-C, SIGTERM: stop the workers the same way (each cleans up its partial outputs), then wait for them.
+        # Repeated until every worker has exited: a worker may have taken the next queued input
+        # after cleaning up the first (a second SIGTERM during a clean-up is ignored).
+        procs = list(getattr(pool, "_processes", {}).values())
+        for _ in range(600):
+            alive = [p for p in procs if p.is_alive()]
+            if not alive:
+                break
+            for proc in alive:
+                proc.terminate()
+            for proc in alive:
+                proc.join(0.1)
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results: dict, report) -> None:
+    from dask.distributed import as_completed  # an optional dependency ([distributed])
+
+    futures = {}
+    for k, task in tasks.items():
+        if chunk_frames is not None and task.kind == "video":
+            results[k] = _run_chunked(task, client, chunk_frames)
+            report(results[k])
+        else:
+            futures[client.submit(_run_task, task, pure=False)] = k
+    for fut in as_completed(list(futures)):
+        k = futures[fut]
+        try:
+            results[k] = fut.result()
+        except Exception as exc:
+            results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: task failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
+        report(results[k])
+
+
+def _write_combined(dest: Path, results: list[InputResult], *, overwrite: bool) -> None:
+    """One Parquet table of every input that has a table, read back from its own output."""
+    parts = []
+    for r in results:
+        if not r.ok:
+            continue
+        own = [o for o in r.outputs if o.suffix in (".csv", ".parquet")]
+        if not own:
+            continue
+        src = own[0]
+        if src.suffix == ".parquet":
+            parts += list(read_parquet(src).items())
+        else:
+            parts.append((r.path.name, read_boxes_csv(src)))
+    write_parquet(dest, parts, overwrite=overwrite, inputs=[r.path for r in results])

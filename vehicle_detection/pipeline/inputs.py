@@ -1,0 +1,388 @@
+"""One input of any kind, with every option: what ``vehicle-detection detect`` does to each input.
+
+An input is a video, an image, or a folder of images (:func:`input_kind`). :func:`run_input`
+runs one with :class:`InputOptions` (frame range, road, tables, video or not, encoding) and
+writes its outputs (:class:`Outputs`: the annotated video, image or folder, and the tables),
+all committed together: a run that fails or is stopped part-way leaves no new file and every
+earlier output as it was. The command line runs one input with it, and :func:`detect_many`
+(:mod:`vehicle_detection.pipeline.batch`) runs each input of a batch with it, so every option
+works the same in both.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from ..detections import Detections
+from ..detector import Detector
+from ..errors import InputError, OutputError, UsageError
+from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
+from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
+from ..io.video import probe_video
+from ..road.survey import Road
+from ..tracker import Tracker, TrackerState
+from ..viz.drawing import draw_detections
+from .video import frame_range, process_video
+
+__all__ = [
+    "VIDEO_EXTENSIONS",
+    "InputOptions",
+    "Outputs",
+    "InputResult",
+    "input_kind",
+    "unknown_type",
+    "expand_inputs",
+    "default_outputs",
+    "check_input_outputs",
+    "run_input",
+]
+
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts", ".m2ts", ".mts")
+#: What each table format is called in messages.
+_TABLE_NAMES = {"csv": "boxes CSV", "lanes": "lanes CSV"}
+
+
+@dataclass(frozen=True)
+class InputOptions:
+    """How each input is processed, and what is written for it.
+
+    Parameters
+    ----------
+    frames : range or (int, int), optional
+        Only decoded frames ``start <= index < end`` (images of a folder: positions in sorted
+        order); the tables keep the decoded indexes. Stored as ``(start, end)``.
+    road : Road, optional
+        Undistortion, distances and lanes (:class:`~vehicle_detection.road.survey.Road`).
+    video : bool
+        Write the annotated video / image / images; False writes the tables only.
+    formats : sequence of str
+        Tables by default name: keys of :data:`~vehicle_detection.io.formats.FORMATS` (``csv``,
+        ``parquet``, ``mot``, ``coco`` for images, ``lanes``, which finds lanes).
+    encoding : Encoding
+        x264 preset and quality of annotated videos.
+    overwrite : bool
+        Replace existing outputs (never an input).
+    progress : bool
+        A progress bar for videos (on a terminal).
+    inputs : tuple of Path
+        Other files the run reads (a model file, a camera file): no output may be one of them.
+    """
+
+    frames: tuple[int, int | None] | range | None = None
+    road: Road = field(default_factory=Road)
+    video: bool = True
+    formats: tuple[str, ...] = ("csv",)
+    encoding: Encoding = field(default_factory=Encoding)
+    overwrite: bool = False
+    progress: bool = False
+    inputs: tuple[Path, ...] = ()
+
+    def __post_init__(self) -> None:
+        formats = tuple(dict.fromkeys(self.formats)) or ("csv",)
+        for fmt in formats:
+            if fmt not in FORMATS:
+                raise UsageError(f"unknown table format {fmt!r}; choose from {', '.join(FORMATS)}")
+        object.__setattr__(self, "formats", formats)
+        object.__setattr__(self, "frames", frame_range(self.frames))
+        object.__setattr__(self, "inputs", tuple(Path(p) for p in self.inputs))
+        if "lanes" in formats and not self.road.lanes:
+            object.__setattr__(self, "road", replace(self.road, lanes=True))  # the lanes table finds lanes
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """Where one input's outputs go.
+
+    Attributes
+    ----------
+    annotated : Path or None
+        The annotated video, image, or folder of images; None: none is written.
+    tables : mapping of str to Path
+        Format -> file.
+    """
+
+    annotated: Path | None
+    tables: Mapping[str, Path]
+
+    def files(self, kind: str, images: Sequence[Path] = ()) -> list[Path]:
+        """Every file written for an input of ``kind`` (for a folder, one annotated image per
+        file of ``images``), the annotated ones first."""
+        if self.annotated is None:
+            drawn = []
+        elif kind == "folder":
+            drawn = [self.annotated / f.name for f in images]
+        else:
+            drawn = [self.annotated]
+        return [*drawn, *self.tables.values()]
+
+
+@dataclass(frozen=True)
+class InputResult:
+    """What happened to one input.
+
+    Attributes
+    ----------
+    path : Path
+        The input (a video, an image, or a folder of images).
+    outputs : tuple of Path
+        Its outputs (written, or found complete when ``skipped``).
+    n_boxes : int or None
+        Boxes found (None when skipped or failed).
+    error : str or None
+        One-line message when the input failed, else None.
+    skipped : bool
+        Its outputs were all there already (``skip_existing``); nothing was rewritten.
+    n_frames : int
+        Frames (or images) processed.
+    seconds : float
+        Wall time of the input.
+    exit_code : int
+        The CLI exit code of its error (0 when it succeeded).
+    notes : tuple of str
+        What else the run found out, one line each: the footage's black bars and overlays and
+        its horizon (videos), each image's count (images).
+    """
+
+    path: Path
+    outputs: tuple[Path, ...] = ()
+    n_boxes: int | None = None
+    error: str | None = None
+    skipped: bool = False
+    n_frames: int = 0
+    seconds: float = 0.0
+    exit_code: int = 0
+    notes: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+# --- inputs and output names --------------------------------------------------------------------
+
+
+def unknown_type(path: Path) -> str:
+    """The one-line error for an input that is no image, video or folder."""
+    return (f"{path}: unknown file type {path.suffix!r}; expected an image ({', '.join(IMAGE_EXTENSIONS)}) "
+            f"or a video ({', '.join(VIDEO_EXTENSIONS)})")
+
+
+def input_kind(path: Path) -> str | None:
+    """``"folder"``, ``"image"`` or ``"video"`` by what ``path`` is (a folder) or its suffix; None: neither."""
+    if path.is_dir():
+        return "folder"
+    suffix = path.suffix.lower()
+    if suffix in IMAGE_EXTENSIONS:
+        return "image"
+    if suffix in VIDEO_EXTENSIONS:
+        return "video"
+    return None
+
+
+def expand_inputs(specs: Iterable[str | os.PathLike]) -> list[tuple[Path, str | None, str | None]]:
+    """Files, globs and folders -> ``(path, kind, problem)`` in order, duplicates dropped.
+
+    A folder holding videos gives each video (sorted by name); a folder holding images is one
+    image-folder input (as ``detect FOLDER``); a folder with both gives both. ``problem`` is a
+    one-line reason the input cannot be processed (missing, unknown type, empty folder), else None.
+    """
+    out: list[tuple[Path, str | None, str | None]] = []
+    seen: set[Path] = set()
+
+    def add(p: Path, kind: str | None, problem: str | None = None) -> None:
+        key = Path(os.path.abspath(p))
+        if key not in seen:
+            seen.add(key)
+            out.append((p, kind, problem))
+
+    for spec in specs:
+        text = os.fspath(spec)
+        p = Path(text)
+        if not p.exists() and glob.has_magic(text):
+            matches = sorted(glob.glob(text))
+            if not matches:
+                add(p, None, f"{p}: no file matches this pattern")
+            for m in map(Path, matches):
+                if input_kind(m) is not None:
+                    add(m, input_kind(m))
+        elif not p.exists():
+            add(p, None, f"{p}: no such file or folder")
+        elif input_kind(p) == "folder":
+            for item in _folder_inputs(p):
+                add(*item)
+        else:
+            kind = input_kind(p)
+            add(p, kind, unknown_type(p) if kind is None else None)
+    return out
+
+
+def _folder_inputs(folder: Path) -> list[tuple[Path, str, str | None]]:
+    """A folder's videos (each an input), then the folder itself when it holds images (or nothing)."""
+    entries = sorted(e for e in folder.iterdir() if e.is_file() and not e.name.startswith("."))
+    videos = [(e, "video", None) for e in entries if e.suffix.lower() in VIDEO_EXTENSIONS]
+    has_images = any(e.suffix.lower() in IMAGE_EXTENSIONS for e in entries)
+    if has_images or not videos:
+        videos.append((folder, "folder", None if has_images else f"{folder}: no videos or images in this folder"))
+    return videos
+
+
+def default_outputs(
+    path: Path, kind: str, out_dir: Path | None = None, formats: Sequence[str] = ("csv",), *, video: bool = True
+) -> Outputs:
+    """The outputs of one input under the default names.
+
+    Beside the input, or in ``out_dir``: ``NAME_detected.mp4`` / ``NAME_detected.EXT`` /
+    ``NAME_detected/`` (None when not ``video``) and the tables ``NAME`` + the suffix of
+    :data:`~vehicle_detection.io.formats.FORMATS` (``NAME_boxes.csv``, ...), except the boxes
+    CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``).
+    """
+    if path.name in ("", ".", ".."):
+        path = Path(os.path.abspath(path))
+    base = path.parent if out_dir is None else Path(out_dir)
+    stem = path.name if kind == "folder" else path.stem
+    suffix = {"video": ".mp4", "image": path.suffix}.get(kind, "")
+    out = base / f"{stem}_detected{suffix}"
+    tables = {fmt: out / "boxes.csv" if (fmt == "csv" and kind == "folder") else base / f"{stem}{FORMATS[fmt]}" for fmt in formats}
+    return Outputs(out if video else None, tables)
+
+
+def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, overwrite: bool, inputs: Iterable[Path]) -> None:
+    """Refuse the outputs of one input before any work (every kind, the command line's and a batch's).
+
+    The annotated folder of a folder of images must be a folder; annotated images need a format
+    Pillow can write; no output may be an input, an existing file (without ``overwrite``), or
+    the same file as another output.
+
+    Raises
+    ------
+    OutputError
+        Naming the output and the problem.
+    """
+    out = outputs.annotated
+    if out is not None:
+        if kind == "folder" and out.exists() and not out.is_dir():
+            raise OutputError(f"{out}: exists and is not a folder; the annotated images of a folder go into a folder")
+        for fmt, table in outputs.tables.items():
+            if kind != "folder" and Path(out).resolve() == Path(table).resolve():
+                what = _TABLE_NAMES.get(fmt, f"{fmt} table")
+                raise OutputError(f"{out}: the annotated output and the {what} cannot be the same file")
+    written = outputs.files(kind, images)
+    for o in written[: len(written) - len(outputs.tables)] if kind != "video" else ():
+        check_image_output(o)  # e.g. .webp without a WebP encoder
+    check_outputs(written, overwrite=overwrite, inputs=inputs)
+
+
+# --- one input -------------------------------------------------------------------------------------
+
+
+def run_input(
+    path: str | os.PathLike,
+    options: InputOptions | None = None,
+    *,
+    detector: Detector | None = None,
+    outputs: Outputs | None = None,
+    out_dir: str | os.PathLike | None = None,
+    threads: int | None = None,
+) -> InputResult:
+    """Detect vehicles in one video, image or folder of images, and write its outputs together.
+
+    Parameters
+    ----------
+    path : path-like
+        The input.
+    options : InputOptions, optional
+        Frames, road, tables, video or not, encoding, overwrite, progress, other inputs.
+    detector : Detector, optional
+        Defaults to ``Detector()`` (the embedded model).
+    outputs : Outputs, optional
+        Where the outputs go; default: :func:`default_outputs` (in ``out_dir`` when given).
+    threads : int, optional
+        The run's share of the cores (see :func:`~vehicle_detection.pipeline.video.process_video`).
+
+    Returns
+    -------
+    InputResult
+        The outputs written, the boxes and frames counted, and notes (one line each).
+
+    Raises
+    ------
+    VehicleDetectionError
+        An :class:`InputError` (missing or unreadable input, unknown type), an
+        :class:`OutputError` (a refused output), ...; nothing is written then.
+    """
+    t = time.perf_counter()
+    path, options, detector = Path(path), options or InputOptions(), detector or Detector()
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    kind = input_kind(path)
+    if kind is None:
+        raise InputError(unknown_type(path))
+    if outputs is None:
+        outputs = default_outputs(path, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video)
+    start, end = options.frames
+    images = list_images(path)[start:end] if kind == "folder" else [path] if kind == "image" else []
+    if "coco" in outputs.tables and kind == "video":
+        raise InputError(f"{path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
+    read = [path, *images, *options.inputs]
+    check_input_outputs(kind, outputs, images, overwrite=options.overwrite, inputs=read)
+    with output_batch():
+        if kind == "video":
+            n_boxes, n_frames, notes = _run_video(path, options, detector, outputs, threads)
+        else:
+            n_boxes, n_frames, notes = _run_images(path, kind, images, options, detector, outputs, read)
+    return InputResult(path, tuple(outputs.files(kind, images)), n_boxes, n_frames=n_frames, seconds=time.perf_counter() - t,
+                       notes=tuple(notes))
+
+
+def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: Outputs, threads: int | None):
+    start, end = options.frames
+    tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))
+    table = process_video(
+        path, outputs.annotated, detector=detector, frames=(start, end), road=options.road, encoding=options.encoding,
+        tables=outputs.tables, overwrite=options.overwrite, progress=options.progress, tracker=tracker, threads=threads,
+    )
+    return len(table), tracker.state.frame_index - start, _video_notes(tracker, detector)
+
+
+def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
+    """What the run measured of the footage: its black bars and overlays, and its horizon."""
+    state = tracker.state
+    notes = list(state.overlays.describe()) if state.overlays is not None else []
+    if state.horizon is not None:
+        cropped = state.overlays is not None and state.overlays.cropped
+        notes.append(f"horizon: {state.horizon:.3f} of the {'picture' if cropped else 'frame'} height, estimated from "
+                     f"the video (the plan's {detector.config.plan.reference_horizon:.3f}); search bands moved accordingly")
+    return notes
+
+
+def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions, detector: Detector, outputs: Outputs,
+                read: list[Path]):
+    """Each image on its own (no tracking): undistorted, searched, measured, drawn; then the tables."""
+    first = options.frames[0] if kind == "folder" else 0
+    found, sizes, lanes, notes = [], [], [], []
+    drawn = outputs.files(kind, images)[: len(images)] if outputs.annotated is not None else [None] * len(images)
+    for i, (f, o) in enumerate(zip(images, drawn), start=first):
+        survey = options.road.survey()  # each image on its own
+        image = read_image(f)
+        options.road.check(image.shape[1], image.shape[0], str(f))
+        image = survey.undistort(image)
+        sizes.append(image.shape[:2])
+        boxes = survey.measure(detector.detect_image(image).replace(frame=i))
+        lane = survey.find_lane(image)
+        survey.record(i, lane)
+        lanes += survey.lane_rows
+        if o is not None:
+            write_image(o, draw_detections(survey.draw(image, lane), boxes), overwrite=options.overwrite, inputs=read)
+        found.append(boxes)
+        notes.append(f"{f}: {len(boxes)} vehicles" + (f" -> {o}" if o is not None else ""))
+    table = Detections.concatenate(found) if found else Detections.empty()
+    if kind == "folder":
+        table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})
+    write_tables(outputs.tables, table, name=path.name, images=[(f.name, s) for f, s in zip(images, sizes)], first=first,
+                 lanes=lanes, overwrite=options.overwrite, inputs=read)
+    return len(table), len(images), notes

@@ -1,0 +1,19 @@
+# The names of vehicle_detection.road, loaded on first use (lazy_loader.attach_stub reads this file).
+from .autocamera import RoadEstimate, estimate_birds_eye, road_transform, save_estimate
+from .camera import Camera, calibrate, find_chessboard
+from .distance import DistanceTracker
+from .lanes import (
+    BirdsEye,
+    Lane,
+    LaneTracker,
+    birds_eye_from_straight,
+    draw_lane,
+    find_lane_pixels,
+    fit_lanes,
+    lane_binary,
+    lane_measures,
+    lane_row,
+    lane_sane,
+    search_around,
+)
+from .survey import Road, RoadSurvey

@@ -1,0 +1,127 @@
+"""What a run measures of the road, frame by frame: the lens undone, distances, and the lane.
+
+:class:`Road` is the setting (which camera, whether to find lanes); :meth:`Road.survey` starts
+the stateful part for one video (or one image), a :class:`RoadSurvey`, which the pipeline asks
+frame by frame, in order: undistort the frame, find its lane, give the boxes their distances and
+relative speeds, and draw the lane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..detections import Detections
+from ..errors import InputError
+from ..io.tables import DISTANCE_COLUMNS
+from .camera import Camera
+from .distance import DistanceTracker
+from .lanes import BirdsEye, Lane, LaneTracker, draw_lane, lane_row
+
+__all__ = ["Road", "RoadSurvey"]
+
+
+@dataclass(frozen=True)
+class Road:
+    """What to measure of the road around the detections.
+
+    Parameters
+    ----------
+    camera : Camera, optional
+        Undistort every frame before the search (:meth:`Camera.undistort`); frames must have
+        the camera's image size.
+    lanes : bool
+        Find the lane in every frame (:class:`~vehicle_detection.road.lanes.LaneTracker`) and
+        draw it with its radius of curvature and the car's offset. Needs a road plane.
+    birds_eye : BirdsEye, optional
+        The road plane (default: ``camera.birds_eye``). When known, every box gets
+        ``distance_m`` and ``relative_speed_mps`` in its ``data`` (NaN where unknown).
+    """
+
+    camera: Camera | None = None
+    lanes: bool = False
+    birds_eye: BirdsEye | None = None
+
+    @property
+    def plane(self) -> BirdsEye | None:
+        """The road plane: ``birds_eye``, else the camera's, else None."""
+        if self.birds_eye is not None:
+            return self.birds_eye
+        return None if self.camera is None else self.camera.birds_eye
+
+    def check(self, width: int, height: int, what: str) -> None:
+        """Refuse frames of ``width`` x ``height`` that this road cannot measure.
+
+        Raises
+        ------
+        InputError
+            Naming ``what``: the frames are not the camera's or the road plane's size, or lanes
+            are asked for without a road plane.
+        """
+        if self.camera is not None:
+            self.camera.check_size(width, height, what)
+        plane = self.plane
+        if plane is not None and tuple(plane.image_size) != (width, height):
+            w, h = plane.image_size
+            raise InputError(f"{what} is {width}x{height}, but the bird's-eye transform is for {w}x{h} frames")
+        if self.lanes and plane is None:
+            raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
+
+    def survey(self, fps: float = 25.0) -> RoadSurvey:
+        """The road of one video at ``fps`` frames per second (or of one image), from its first frame."""
+        return RoadSurvey(self, fps)
+
+
+class RoadSurvey:
+    """The road of one video, asked frame by frame in order (see :meth:`Road.survey`).
+
+    Attributes
+    ----------
+    lane_rows : list of (int, float or None, float or None)
+        ``(frame, radius_m, offset_m)`` of every frame :meth:`record` was given (the lanes CSV).
+    """
+
+    def __init__(self, road: Road, fps: float = 25.0) -> None:
+        self.road = road
+        plane = road.plane
+        self._lanes = LaneTracker(plane) if road.lanes else None
+        self._distances = None if plane is None else DistanceTracker(plane, fps)
+        self.lane_rows: list[tuple[int, float | None, float | None]] = []
+
+    @property
+    def finds_lanes(self) -> bool:
+        return self._lanes is not None
+
+    @property
+    def changes_frames(self) -> bool:
+        """Whether :meth:`undistort` or :meth:`find_lane` has work to do."""
+        return self.road.camera is not None or self._lanes is not None
+
+    def undistort(self, frame: np.ndarray) -> np.ndarray:
+        """The frame with the lens distortion undone (the frame itself without a camera)."""
+        return frame if self.road.camera is None else self.road.camera.undistort(frame)
+
+    def find_lane(self, frame: np.ndarray) -> Lane | None:
+        """The lane of the next (undistorted) frame; None when lanes are not asked for or not found."""
+        return None if self._lanes is None else self._lanes.step(frame)
+
+    def measure(self, found: Detections) -> Detections:
+        """The next frame's boxes with ``distance_m`` and ``relative_speed_mps`` when the road
+        plane is known (else ``found`` as it is)."""
+        return found if self._distances is None else self._distances.update(found)
+
+    def complete(self, table: Detections) -> Detections:
+        """The run's table with the distance columns even when it has no box (else as it is)."""
+        if self._distances is None or len(table):
+            return table
+        return table.replace(data={**table.data, **{c: np.zeros(0) for c in DISTANCE_COLUMNS}})
+
+    def record(self, frame: int, lane: Lane | None) -> None:
+        """Add frame ``frame``'s lane (or its absence) to :attr:`lane_rows`, when lanes are asked for."""
+        if self._lanes is not None:
+            self.lane_rows.append(lane_row(frame, lane))
+
+    def draw(self, frame: np.ndarray, lane: Lane | None) -> np.ndarray:
+        """The (undistorted) frame with its lane drawn, when lanes are asked for; else the frame."""
+        return frame if self._lanes is None else draw_lane(frame, lane, self.road.plane)

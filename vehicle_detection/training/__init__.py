@@ -1,0 +1,8 @@
+"""Training the classifier: the labelled patches, their download, hard-negative mining, and the fit.
+
+The names are loaded on first use (the stub ``__init__.pyi`` lists them).
+"""
+
+import lazy_loader as _lazy
+
+__getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)

@@ -1,0 +1,220 @@
+"""Training: feature extraction, honest held-out accuracies, the final fit, and parameter sweeps.
+
+:func:`train` turns a :class:`~vehicle_detection.training.data.Dataset` into a
+:class:`~vehicle_detection.classifier.VehicleClassifier` (the model type, its file format and its
+scoring live in :mod:`vehicle_detection.classifier`); :func:`with_box_refinement` adds the box
+refinement learned from labelled frames; :func:`sweep` compares feature configurations on the
+random and grouped splits (:func:`split_indices`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+
+import numpy as np
+from joblib import Parallel, delayed
+from sklearn.metrics import accuracy_score, confusion_matrix, precision_score, recall_score
+from sklearn.model_selection import GroupShuffleSplit, train_test_split
+
+from ..classifier import DEFAULT_C, VehicleClassifier
+from ..errors import InputError
+from ..features import FeatureConfig, extract_features
+from ..refine import fit_box_regressor
+from .data import Dataset, check_split_sizes
+from .mining import labelled_frames
+
+__all__ = ["split_indices", "train", "with_box_refinement", "sweep", "sweep_configs"]
+
+
+def split_indices(labels, groups=None, *, test_size: float = 0.2, random_state: int = 0):
+    """Train/test indices of a randomised split; grouped when ``groups`` is given.
+
+    With ``groups`` no group is on both sides (:class:`~sklearn.model_selection.GroupShuffleSplit`);
+    without, the split is stratified by label.
+
+    Returns
+    -------
+    train, test : ndarray of int
+    """
+    idx = np.arange(len(labels))
+    if groups is None:
+        return train_test_split(idx, test_size=test_size, random_state=random_state, shuffle=True, stratify=labels)
+    gss = GroupShuffleSplit(n_splits=1, test_size=test_size, random_state=random_state)
+    return next(gss.split(idx, labels, groups))
+
+
+def _scores(y_true, y_pred) -> dict:
+    tn, fp, fn, tp = confusion_matrix(y_true, y_pred, labels=[0, 1]).ravel()
+    return {
+        "accuracy": float(accuracy_score(y_true, y_pred)),
+        "precision": float(precision_score(y_true, y_pred, zero_division=0)),
+        "recall": float(recall_score(y_true, y_pred, zero_division=0)),
+        "confusion": {"tn": int(tn), "fp": int(fp), "fn": int(fn), "tp": int(tp)},
+    }
+
+
+def _evaluate_split(features, labels, config, train_idx, test_idx, C):
+    t = time.perf_counter()
+    model = VehicleClassifier.fit(features[train_idx], labels[train_idx], config, C=C)
+    fit_s = time.perf_counter() - t
+    pred = model.predict(features[test_idx])
+    out = _scores(labels[test_idx], pred)
+    out.update(n_train=int(len(train_idx)), n_test=int(len(test_idx)), fit_seconds=round(fit_s, 3))
+    return out
+
+
+def train(
+    dataset: Dataset,
+    config: FeatureConfig = FeatureConfig(),
+    *,
+    C: float = DEFAULT_C,
+    test_size: float = 0.2,
+    random_state: int = 0,
+    evaluate: bool = True,
+    n_jobs: int = 2,
+) -> VehicleClassifier:
+    """Extract features, report honest accuracies, and fit the final model on every patch.
+
+    Two held-out evaluations are run (in parallel with ``n_jobs``): a randomised stratified
+    80/20 split, and a grouped 80/20 split in which no group of
+    :attr:`~vehicle_detection.training.data.Dataset.groups` (GTI time-series blocks, byte-identical
+    files) is on both sides. The final model is then fitted on all patches.
+
+    Returns
+    -------
+    VehicleClassifier
+        With ``metrics``: ``random_split`` and ``grouped_split`` (accuracy, precision, recall,
+        confusion, n_train, n_test, fit_seconds), ``feature_seconds`` and ``fit_seconds`` for
+        all patches, ``n_images``, ``n_features``, ``C``.
+    """
+    labels = np.asarray(dataset.labels)
+    splits = {}
+    if evaluate:  # too small a data set is refused here, before any work, not by scikit-learn
+        check_split_sizes(labels, dataset.groups, test_size=test_size)
+        splits = {
+            "random_split": split_indices(labels, test_size=test_size, random_state=random_state),
+            "grouped_split": split_indices(labels, dataset.groups, test_size=test_size, random_state=random_state),
+        }
+    elif len(np.unique(labels)) < 2:
+        raise InputError(f"dataset: training needs images of both classes, got only label(s) {np.unique(labels).tolist()}")
+    extract_features(dataset.images[:2], config)  # compile the kernels outside the timing
+    t = time.perf_counter()
+    features = extract_features(dataset.images, config)
+    feature_s = time.perf_counter() - t
+    metrics = {}
+    if evaluate:
+        results = Parallel(n_jobs=n_jobs, backend="threading")(
+            delayed(_evaluate_split)(features, labels, config, tr, te, C) for tr, te in splits.values()
+        )
+        metrics.update(zip(splits, results))
+    t = time.perf_counter()
+    model = VehicleClassifier.fit(features, labels, config, C=C)
+    fit_s = time.perf_counter() - t
+    metrics.update(
+        feature_seconds=round(feature_s, 3),
+        fit_seconds=round(fit_s, 3),
+        n_images=int(len(labels)),
+        n_features=int(config.n_features),
+        C=C,
+        test_size=test_size,
+        random_state=random_state,
+    )
+    return model.replace(metrics=metrics)
+
+
+def with_box_refinement(
+    model: VehicleClassifier, annotations, *, alpha: float = 1000.0, cluster_iou: float = 0.3, box_vote: float = 0.5
+) -> VehicleClassifier:
+    """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
+
+    Heat then goes to each window's refined box as it is (no fixed window inset), and blobs
+    whose refined boxes form several clusters at ``cluster_iou`` are split, one box per vehicle
+    (:func:`~vehicle_detection.heatmap.split_blobs`); each box then moves ``box_vote`` of the
+    way to the mean of its windows' refined boxes (:func:`~vehicle_detection.heatmap.vote_boxes`).
+
+    Parameters
+    ----------
+    annotations : sequence of Annotations
+        Labelled frames; frames you score later must not be among them.
+    alpha : float
+        Ridge penalty.
+    cluster_iou, box_vote : float
+        Saved in the detector's tracker settings (:class:`~vehicle_detection.tracker.TrackerConfig`).
+    """
+    samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
+    t = time.perf_counter()
+    regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height)
+    cfg = model.detector_config
+    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote))
+    metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "seconds": round(time.perf_counter() - t, 3),
+                                                    "labels": [str(a.path) for a in annotations]}}
+    return model.replace(box_regressor=regressor, detector_config=cfg, metrics=metrics)
+
+
+# --- parameter sweep ---------------------------------------------------------------------------
+
+
+def sweep_configs(
+    color_spaces=("YCrCb", "YUV", "HLS", "LUV"),
+    hog_channels=((0, 1, 2),),
+    orientations=(9, 16),
+    pixels_per_cell=(8, 16),
+    cells_per_block=(2,),
+    color_features=((16, 32), (0, 0)),
+    signed=(True,),
+    hog_sqrt=(True,),
+) -> list[FeatureConfig]:
+    """The product of the given choices as :class:`FeatureConfig` objects.
+
+    ``color_features`` lists ``(spatial_size, hist_bins)`` pairs; ``(0, 0)`` is HOG only.
+    """
+    return [
+        FeatureConfig(
+            color_space=cs, hog_channels=ch, orientations=o, pixels_per_cell=p, cells_per_block=b,
+            signed=sg, hog_sqrt=sq, spatial_size=s, hist_bins=h,
+        )
+        for cs, ch, o, p, b, (s, h), sg, sq in itertools.product(
+            color_spaces, hog_channels, orientations, pixels_per_cell, cells_per_block, color_features, signed, hog_sqrt
+        )
+    ]
+
+
+def _sweep_one(images, labels, groups, config, C, test_size, random_state):
+    t = time.perf_counter()
+    feats = extract_features(images, config)
+    feature_s = time.perf_counter() - t
+    row = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+    row.update(n_features=config.n_features, feature_seconds=round(feature_s, 3))
+    for name, g in (("random", None), ("grouped", groups)):
+        tr, te = split_indices(labels, g, test_size=test_size, random_state=random_state)
+        res = _evaluate_split(feats, labels, config, tr, te, C)
+        row[f"{name}_accuracy"] = res["accuracy"]
+        row[f"{name}_fit_seconds"] = res["fit_seconds"]
+    return row
+
+
+def sweep(
+    dataset: Dataset,
+    configs: list[FeatureConfig],
+    *,
+    C: float = DEFAULT_C,
+    test_size: float = 0.2,
+    random_state: int = 0,
+    n_jobs: int = 2,
+) -> list[dict]:
+    """Score each feature configuration on the random and grouped splits, in parallel.
+
+    Returns
+    -------
+    list of dict
+        One row per config: its fields, ``n_features``, ``feature_seconds``,
+        ``random_accuracy``, ``grouped_accuracy`` and the fit times; sorted by
+        ``grouped_accuracy``, best first.
+    """
+    check_split_sizes(dataset.labels, dataset.groups, test_size=test_size)  # before any work
+    rows = Parallel(n_jobs=n_jobs)(
+        delayed(_sweep_one)(dataset.images, dataset.labels, dataset.groups, cfg, C, test_size, random_state) for cfg in configs
+    )
+    return sorted(rows, key=lambda r: -r["grouped_accuracy"])

@@ -1,0 +1,8 @@
+"""Pictures: boxes and captions drawn on frames, and the notebooks' figures (matplotlib).
+
+The names are loaded on first use (the stub ``__init__.pyi`` lists them).
+"""
+
+import lazy_loader as _lazy
+
+__getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)
