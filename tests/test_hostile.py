@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from vehicle_detection.io.tables import read_boxes_csv
 from PIL import Image, ImageFile, ImageOps
 
 import media
@@ -941,7 +943,8 @@ def test_the_real_calibrated_camera_passes_every_check(tmp_path, capsys):
     shutil.copy(TEST_IMAGES / "test1.jpg", image)
     code, out, err = run_main(capsys, "detect", image, "--camera", camera, "--lanes")
     assert (code, err) == (0, [])
-    assert out[0].endswith("vehicles -> " + str(tmp_path / "test1_detected.jpg")) and not out[0].endswith(": 0 vehicles -> " + str(tmp_path / "test1_detected.jpg"))
+    found = read_boxes_csv(tmp_path / "test1_boxes.csv")
+    assert (tmp_path / "test1_detected.jpg").is_file() and len(found) >= 1, out  # an absurd camera would leave nothing to find
 
 
 @pytest.mark.skipif(not all(p.is_file() for p in STRAIGHT), reason="no straight-road frames in ../shared/data")
@@ -1153,7 +1156,8 @@ def test_re_signed_unchanged_model_is_accepted(tmp_path, capsys):
     """The baseline of the cases above: signing again changes nothing."""
     img = save(tmp_path / "street.png", picture())
     model = _signed_model(tmp_path / "model.npz")
-    assert run_main(capsys, "detect", img, "--model", model)[:2] == (0, [f"{img}: 0 vehicles -> {tmp_path / 'street_detected.png'}", f"boxes: {tmp_path / 'street_boxes.csv'}"])
+    code, out, err = run_main(capsys, "detect", img, "--model", model)
+    assert (code, err) == (0, []) and (tmp_path / "street_detected.png").is_file() and (tmp_path / "street_boxes.csv").is_file(), out
 
 
 @posix_only
