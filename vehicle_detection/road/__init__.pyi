@@ -1,5 +1,5 @@
 # The names of vehicle_detection.road, loaded on first use (lazy_loader.attach_stub reads this file).
-from .autocamera import RoadEstimate, estimate_birds_eye, road_transform, save_estimate
+from .autocamera import EstimateSettings, RoadEstimate, estimate_birds_eye, road_transform, save_estimate
 from .camera import Camera, calibrate, find_chessboard
 from .distance import DistanceTracker
 from .lanes import (

@@ -57,6 +57,7 @@ from .camera import Camera
 from .lanes import DASH_PERIOD_M, LANE_WIDTH_M, BirdsEye, _dash_period, _view_from_lines, draw_lane
 
 __all__ = [
+    "EstimateSettings",
     "RoadEstimate",
     "FrameLines",
     "paint_mask",
@@ -467,29 +468,12 @@ def sample_frames(path: str | os.PathLike, *, seconds: float = 10.0, max_frames:
     return indices, frames
 
 
-def estimate_birds_eye(
-    frames: Iterable[np.ndarray],
-    camera=None,
-    *,
-    lane_width_m: float = LANE_WIDTH_M,
-    dash_period_m: float = DASH_PERIOD_M,
-    top: float = 0.1,
-    warped_size: tuple[int, int] | None = None,
-    margin: float = 0.25,
-    min_frames: int = 5,
-    min_share: float = 0.2,
-    window: int = 3,
-    bootstrap: int = 200,
-    seed: int = 0,
-) -> tuple[BirdsEye | None, RoadEstimate]:
-    """The bird's-eye transform of a camera, from frames of the road ahead (see the module docstring).
+@dataclass(frozen=True)
+class EstimateSettings:
+    """The road's dimensions, and how :func:`estimate_birds_eye` makes its estimate.
 
     Parameters
     ----------
-    frames : iterable of ndarray of uint8, shape (H, W, 3)
-        RGB frames of one camera, all of one size (e.g. :func:`sample_frames`).
-    camera : Camera, optional
-        Undistort the frames first; its own ``birds_eye`` is not used (see :func:`road_transform`).
     lane_width_m, dash_period_m : float
         The road's lane width and the period of its dashed lines (dash plus gap).
     top : float
@@ -509,6 +493,34 @@ def estimate_birds_eye(
         Resamples of the frames for the intervals.
     seed : int
         Of the bootstrap's random generator.
+    """
+
+    lane_width_m: float = LANE_WIDTH_M
+    dash_period_m: float = DASH_PERIOD_M
+    top: float = 0.1
+    warped_size: tuple[int, int] | None = None
+    margin: float = 0.25
+    min_frames: int = 5
+    min_share: float = 0.2
+    window: int = 3
+    bootstrap: int = 200
+    seed: int = 0
+
+
+def estimate_birds_eye(
+    frames: Iterable[np.ndarray], camera=None, settings: EstimateSettings | None = None
+) -> tuple[BirdsEye | None, RoadEstimate]:
+    """The bird's-eye transform of a camera, from frames of the road ahead (see the module docstring).
+
+    Parameters
+    ----------
+    frames : iterable of ndarray of uint8, shape (H, W, 3)
+        RGB frames of one camera, all of one size (e.g. :func:`sample_frames`).
+    camera : Camera, optional
+        Undistort the frames first; its own ``birds_eye`` is not used (see :func:`road_transform`).
+    settings : EstimateSettings, optional
+        The road's lane width and dash period, and how the estimate is made (default:
+        :class:`EstimateSettings` ()).
 
     Returns
     -------
@@ -517,6 +529,7 @@ def estimate_birds_eye(
     estimate : RoadEstimate
         The figures and their uncertainty, or the ``reason`` there are none.
     """
+    cfg = settings if settings is not None else EstimateSettings()
     frames = [camera.undistort(f) if camera is not None else np.asarray(f) for f in frames]
     if not frames:
         return None, RoadEstimate("no frames", (0, 0), 0)
@@ -526,13 +539,13 @@ def estimate_birds_eye(
             raise ValueError(f"frames must be RGB uint8 of one size; got {f.shape} {f.dtype} after {w}x{h}")
     n = len(frames)
     size = (w, h)
-    needed = max(min_frames, int(math.ceil(min_share * n)))
+    needed = max(cfg.min_frames, int(math.ceil(cfg.min_share * n)))
     segs = [paint_segments(f) for f in frames]
     crossings = [c for c in (_crossing(s, h) for s in segs) if c is not None]
     if len(crossings) < needed:
         return None, RoadEstimate(f"no lane lines seen: lines converging ahead in {len(crossings)} of {n} frames (need {needed})", size, n)
     first = np.median(np.array(crossings), axis=0)
-    half = window // 2
+    half = cfg.window // 2
     pooled = [np.concatenate(segs[max(0, i - half) : i + half + 1]) for i in range(n)]  # dashes move along their line
     for _ in range(2):  # the lane lines of each frame, then again around their own median crossing
         found = [fl for fl in (frame_lines(s, first, size, i) for i, s in enumerate(pooled)) if fl is not None]
@@ -555,8 +568,8 @@ def estimate_birds_eye(
             return None
         left = _line_through((vx, vy), (centre - width / 2, h))
         right = _line_through((vx, vy), (centre + width / 2, h))
-        ww, wh = warped_size or (w // 2, h // 2)
-        return _view_from_lines(left, right, size, vy + top * (h - vy), (ww, wh), margin, lane_width_m), left, right
+        ww, wh = cfg.warped_size or (w // 2, h // 2)
+        return _view_from_lines(left, right, size, vy + cfg.top * (h - vy), (ww, wh), cfg.margin, cfg.lane_width_m), left, right
 
     vx, vy = np.median(vp, axis=0)
     made = view_of(vx, vy, np.median(widths), np.median(centres))
@@ -567,17 +580,17 @@ def estimate_birds_eye(
     for fl in found:
         period = _frame_period(frames[fl.index], view)
         if period is not None:
-            per_frame[fl.index] = dash_period_m / period
+            per_frame[fl.index] = cfg.dash_period_m / period
     if len(per_frame) < max(3, needed // 2):
         reason = f"no lane dashes seen (a period in {len(per_frame)} of {len(found)} frames): the scale along the road is unknown"
         return None, RoadEstimate(reason, size, n, used, len(per_frame), (float(vx), float(vy)), left, right, view.xm_per_px,
-                                  lane_width_m=lane_width_m, dash_period_m=dash_period_m)
+                                  lane_width_m=cfg.lane_width_m, dash_period_m=cfg.dash_period_m)
     ym_frames = np.array(list(per_frame.values()))
     ym = float(np.median(ym_frames))
     view = view.replace(ym_per_px=ym)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(cfg.seed)
     boot = {"vanishing_y_px": [], "lane_width_px": [], "ym_per_px": []}
-    for _ in range(bootstrap):
+    for _ in range(cfg.bootstrap):
         pick = rng.integers(0, len(found), len(found))
         boot["vanishing_y_px"].append(np.median(vp[pick, 1]))
         boot["lane_width_px"].append(np.median(widths[pick]))
@@ -589,10 +602,10 @@ def estimate_birds_eye(
         "lane_width_px": _iqr(widths),
         "ym_rel": _iqr(ym_frames) / ym,
     }
-    height_m, focal, pitch = _implied_camera(view, (vx, vy), float(np.median(widths)), lane_width_m, camera)
+    height_m, focal, pitch = _implied_camera(view, (vx, vy), float(np.median(widths)), cfg.lane_width_m, camera)
     estimate = RoadEstimate(
         None, size, n, used, len(per_frame), (float(vx), float(vy)), left, right, view.xm_per_px, ym, spread, interval,
-        height_m, focal, pitch, lane_width_m, dash_period_m,
+        height_m, focal, pitch, cfg.lane_width_m, cfg.dash_period_m,
     )
     return view, estimate
 

@@ -445,6 +445,110 @@ def _as_lanes(lanes) -> tuple[dict[str, np.ndarray] | None, str | None]:
     return {"frame": arr[:, 0].astype(np.int64), "curvature_m": arr[:, 1], "offset_m": arr[:, 2]}, None
 
 
+def _frame_count(detections: Detections, n_frames, lane_table, info) -> tuple[int, str]:
+    """How many frames the run had, and how that is known (a note for the page)."""
+    last = int(detections.frame.max()) + 1 if len(detections) else 0
+    if n_frames is not None:
+        if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 0:
+            raise ValueError(f"n_frames must be an integer >= 0; got {n_frames!r}")
+        if n_frames < last:
+            raise ValueError(f"n_frames is {n_frames}, but the boxes name frame {last - 1}")
+        return int(n_frames), ""
+    if lane_table is not None and len(lane_table["frame"]):
+        return max(len(lane_table["frame"]), last), " (one lanes row per frame)"
+    if info is not None and info.n_frames:
+        return max(int(info.n_frames), last), " (as the video declares)"
+    return last, " (at least: up to the last frame with a box)"
+
+
+def _facts(detections, spans, frames, frames_note, video, info, boxes_name, lanes_name) -> list[tuple[str, str]]:
+    facts = [("frames", f"{frames}{frames_note}"), ("boxes", str(len(detections)))]
+    facts.append(("vehicles tracked", str(len(spans)) if detections.track_id is not None else "untracked boxes"))
+    if info is not None:
+        facts.append(("video", f"{video} ({info.width}x{info.height}, {info.fps:.2f} fps)"))
+    if boxes_name:
+        facts.append(("boxes table", boxes_name))
+    if lanes_name:
+        facts.append(("lanes table", lanes_name))
+    if len(detections) and "file" in detections.data:
+        facts.append(("images", str(len(np.unique(detections.data["file"])))))
+    return facts
+
+
+def _timeline_section(detections, spans, frames) -> list[str]:
+    body = ["<h2>Track timeline</h2>"]
+    if spans:
+        body.append(_figure_img(_timeline(detections, spans, frames), "track timeline"))
+    else:
+        body.append('<p class="note">No tracks: ' + ("the boxes are not tracked." if detections.track_id is None else "no vehicle was tracked.") + "</p>")
+    return body
+
+
+def _sheet_cell(detections, r: int, tid: int, crops: dict) -> str:
+    x1, y1, x2, y2 = detections.xyxy[r].tolist()
+    caption = f"frame {int(detections.frame[r])}, {x2 - x1}x{y2 - y1}"
+    if r not in crops:
+        return f"<figure><figcaption>{html.escape(caption)} at ({x1}, {y1})</figcaption></figure>"
+    crop = crops[r]
+    pic = _img(_encode_jpeg(crop), f"car {tid}, {caption}", size=(crop.shape[1], crop.shape[0]))
+    return f"<figure>{pic}<figcaption>{html.escape(caption)}</figcaption></figure>"
+
+
+def _sheet_section(detections, spans, video, max_tracks: int) -> list[str]:
+    body = ["<h2>Contact sheet: each track's first, middle and last box</h2>"]
+    if not spans:
+        return body + ['<p class="note">No tracks to show.</p>']
+    picks = _picks(spans, max_tracks)
+    crops = _cut_crops(video, detections, [r for rows in picks.values() for r in rows]) if video is not None else {}
+    if video is None:
+        body.append('<p class="note">No video given: the boxes without their pictures.</p>')
+    if len(picks) < len(spans):
+        body.append(f'<p class="note">The {len(picks)} longest of {len(spans)} tracks.</p>')
+    body.append('<table class="sheet"><tr><th>track</th><th>frames</th><th>boxes</th><th>first, middle, last</th></tr>')
+    for tid, rows in picks.items():
+        idx = spans[tid]
+        cells = "".join(_sheet_cell(detections, r, tid, crops) for r in rows)
+        first, end = int(detections.frame[idx[0]]), int(detections.frame[idx[-1]])
+        body.append(f"<tr><td>car {tid}</td><td>{first}&ndash;{end}</td><td>{len(idx)}</td><td>{cells}</td></tr>")
+    body.append("</table>")
+    return body
+
+
+def _counts_section(detections, frames) -> list[str]:
+    counts = np.bincount(detections.frame, minlength=frames) if len(detections) else np.zeros(frames, np.int64)
+    mean = f"{counts.mean():.2f}" if frames else "no"
+    return [
+        "<h2>Boxes per frame</h2>",
+        _figure_img(_boxes_per_frame(detections, frames), "boxes per frame"),
+        f'<p class="note">{mean} boxes per frame on average; frames without any: {int((counts == 0).sum())}.</p>',
+    ]
+
+
+def _distance_section(detections, spans, frames) -> list[str]:
+    if not (spans and "distance_m" in detections.data):
+        return []
+    dist = np.asarray(detections.data["distance_m"], np.float64)
+    known = np.isfinite(dist)
+    note = f"distance known for {int(known.sum())} of {len(dist)} boxes"
+    if known.any():
+        note += f", {dist[known].min():.1f} to {dist[known].max():.1f} m"
+    return ["<h2>Distances</h2>", _figure_img(_distances(detections, spans, frames), "distance of each tracked vehicle"), f'<p class="note">{note}.</p>']
+
+
+def _lanes_section(lane_table, frames) -> list[str]:
+    if lane_table is None:
+        return []
+    if not len(lane_table["frame"]):
+        return ["<h2>Lanes</h2>", '<p class="note">The lanes table has no rows.</p>']
+    radius, offset = lane_table["curvature_m"], lane_table["offset_m"]
+    found = np.isfinite(radius)
+    note = f"no lane in {int((~found).sum())} of {len(radius)} frames"
+    if found.any():
+        note += (f"; median radius {np.median(radius[found]):,.0f} m, offset {np.nanmin(offset):+.2f} to "
+                 f"{np.nanmax(offset):+.2f} m (+ right of the lane centre)")
+    return ["<h2>Lanes</h2>", _figure_img(_lanes_figure(lane_table, frames), "radius of curvature and offset"), f'<p class="note">{note}.</p>']
+
+
 def render_html_report(
     boxes: Detections | str | os.PathLike,
     *,
@@ -458,105 +562,20 @@ def render_html_report(
     detections, boxes_name = _as_detections(boxes)
     lane_table, lanes_name = _as_lanes(lanes)
     _figure_module()  # fail before any decoding when matplotlib is missing
-    info = None
-    if video is not None:
-
-        video = Path(video)
-        info = probe_video(video)
-    last = int(detections.frame.max()) + 1 if len(detections) else 0
-    if n_frames is not None:
-        if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 0:
-            raise ValueError(f"n_frames must be an integer >= 0; got {n_frames!r}")
-        if n_frames < last:
-            raise ValueError(f"n_frames is {n_frames}, but the boxes name frame {last - 1}")
-        frames, frames_note = int(n_frames), ""
-    elif lane_table is not None and len(lane_table["frame"]):
-        frames, frames_note = max(len(lane_table["frame"]), last), " (one lanes row per frame)"
-    elif info is not None and info.n_frames:
-        frames, frames_note = max(int(info.n_frames), last), " (as the video declares)"
-    else:
-        frames, frames_note = last, " (at least: up to the last frame with a box)"
-
+    video = Path(video) if video is not None else None
+    info = probe_video(video) if video is not None else None
+    frames, frames_note = _frame_count(detections, n_frames, lane_table, info)
     spans = track_spans(detections)
     name = title or (video.name if video is not None else Path(boxes_name).name if boxes_name else "detections")
-    facts = [("frames", f"{frames}{frames_note}"), ("boxes", str(len(detections)))]
-    facts.append(("vehicles tracked", str(len(spans)) if detections.track_id is not None else "untracked boxes"))
-    if info is not None:
-        facts.append(("video", f"{video} ({info.width}x{info.height}, {info.fps:.2f} fps)"))
-    if boxes_name:
-        facts.append(("boxes table", boxes_name))
-    if lanes_name:
-        facts.append(("lanes table", lanes_name))
-    if len(detections) and "file" in detections.data:
-        facts.append(("images", str(len(np.unique(detections.data["file"])))))
-
+    facts = _facts(detections, spans, frames, frames_note, video, info, boxes_name, lanes_name)
     body = [f"<h1>{html.escape(name)}</h1>", '<table class="facts">']
     body += [f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in facts]
     body.append("</table>")
-
-    body.append("<h2>Track timeline</h2>")
-    if spans:
-        body.append(_figure_img(_timeline(detections, spans, frames), "track timeline"))
-    else:
-        body.append('<p class="note">No tracks: ' + ("the boxes are not tracked." if detections.track_id is None else "no vehicle was tracked.") + "</p>")
-
-    body.append("<h2>Contact sheet: each track's first, middle and last box</h2>")
-    if spans:
-        picks = _picks(spans, max_tracks)
-        crops = _cut_crops(video, detections, [r for rows in picks.values() for r in rows]) if video is not None else {}
-        if video is None:
-            body.append('<p class="note">No video given: the boxes without their pictures.</p>')
-        if len(picks) < len(spans):
-            body.append(f'<p class="note">The {len(picks)} longest of {len(spans)} tracks.</p>')
-        body.append('<table class="sheet"><tr><th>track</th><th>frames</th><th>boxes</th><th>first, middle, last</th></tr>')
-        for tid, rows in picks.items():
-            idx = spans[tid]
-            cells = []
-            for r in rows:
-                x1, y1, x2, y2 = detections.xyxy[r].tolist()
-                caption = f"frame {int(detections.frame[r])}, {x2 - x1}x{y2 - y1}"
-                if r in crops:
-                    crop = crops[r]
-                    pic = _img(_encode_jpeg(crop), f"car {tid}, {caption}", size=(crop.shape[1], crop.shape[0]))
-                    cells.append(f"<figure>{pic}<figcaption>{html.escape(caption)}</figcaption></figure>")
-                else:
-                    cells.append(f"<figure><figcaption>{html.escape(caption)} at ({x1}, {y1})</figcaption></figure>")
-            first, end = int(detections.frame[idx[0]]), int(detections.frame[idx[-1]])
-            body.append(f"<tr><td>car {tid}</td><td>{first}&ndash;{end}</td><td>{len(idx)}</td><td>{''.join(cells)}</td></tr>")
-        body.append("</table>")
-    else:
-        body.append('<p class="note">No tracks to show.</p>')
-
-    body.append("<h2>Boxes per frame</h2>")
-    body.append(_figure_img(_boxes_per_frame(detections, frames), "boxes per frame"))
-    counts = np.bincount(detections.frame, minlength=frames) if len(detections) else np.zeros(frames, np.int64)
-    mean = f"{counts.mean():.2f}" if frames else "no"
-    body.append(f'<p class="note">{mean} boxes per frame on average; frames without any: {int((counts == 0).sum())}.</p>')
-
-    if spans and "distance_m" in detections.data:
-        body.append("<h2>Distances</h2>")
-        body.append(_figure_img(_distances(detections, spans, frames), "distance of each tracked vehicle"))
-        dist = np.asarray(detections.data["distance_m"], np.float64)
-        known = np.isfinite(dist)
-        note = f"distance known for {int(known.sum())} of {len(dist)} boxes"
-        if known.any():
-            note += f", {dist[known].min():.1f} to {dist[known].max():.1f} m"
-        body.append(f'<p class="note">{note}.</p>')
-
-    if lane_table is not None:
-        body.append("<h2>Lanes</h2>")
-        if len(lane_table["frame"]):
-            body.append(_figure_img(_lanes_figure(lane_table, frames), "radius of curvature and offset"))
-            radius, offset = lane_table["curvature_m"], lane_table["offset_m"]
-            found = np.isfinite(radius)
-            note = f"no lane in {int((~found).sum())} of {len(radius)} frames"
-            if found.any():
-                note += (f"; median radius {np.median(radius[found]):,.0f} m, offset {np.nanmin(offset):+.2f} to "
-                         f"{np.nanmax(offset):+.2f} m (+ right of the lane centre)")
-            body.append(f'<p class="note">{note}.</p>')
-        else:
-            body.append('<p class="note">The lanes table has no rows.</p>')
-
+    body += _timeline_section(detections, spans, frames)
+    body += _sheet_section(detections, spans, video, max_tracks)
+    body += _counts_section(detections, frames)
+    body += _distance_section(detections, spans, frames)
+    body += _lanes_section(lane_table, frames)
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         f"<title>{html.escape(name)}: vehicle-detection report</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
