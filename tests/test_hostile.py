@@ -1306,3 +1306,131 @@ def test_inputs_linked_to_dev_zero_are_refused_without_reading(tmp_path):
     results = json.loads(proc.stdout.splitlines()[-1])
     assert results == [[code, [ERROR + message]] for _, code, message in cases]
     assert snapshot(tmp_path) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# t. A dask cluster that cannot be reached, or goes away midway, is exit 8 naming its address
+#    (was: a 30 s wait, then "internal error: OSError: Timed out trying to connect", exit 1)
+# ----------------------------------------------------------------------------------------------
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@needs_media
+def test_unreachable_scheduler_is_exit_8_naming_the_address(tmp_path, capsys):
+    pytest.importorskip("distributed", reason="dask.distributed not installed")
+    address = f"tcp://127.0.0.1:{_free_port()}"  # nobody listens there
+    out = tmp_path / "o"
+    code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out-dir", out, "--scheduler", address, "--scheduler-timeout", "1")
+    assert code == 8
+    assert err == [f"{ERROR}{address}: the dask scheduler cannot be reached (no answer within 1 s; is 'dask scheduler' running "
+                   "there, and the port open? --scheduler-timeout waits longer)"]
+    assert not out.exists()
+    # HOST:PORT without a scheme is a tcp address, as dask's own tools take it.
+    code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out-dir", out, "--scheduler", address[6:], "--scheduler-timeout", "0.5")
+    assert code == 8 and err[0].startswith(f"{ERROR}{address}: the dask scheduler cannot be reached (no answer within 0.5 s")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "problem"),
+    [(["--scheduler", "nonsense"], "--scheduler 'nonsense': expected a dask scheduler's address"),
+     (["--scheduler", ""], "--scheduler '': expected a dask scheduler's address"),
+     (["--scheduler", "http://127.0.0.1:8786"], "--scheduler 'http://127.0.0.1:8786': expected a dask scheduler's address"),
+     (["--scheduler", "tcp://127.0.0.1:99999"], "--scheduler 'tcp://127.0.0.1:99999': expected a dask scheduler's address"),
+     (["--scheduler", "tcp://127.0.0.1:0"], "--scheduler 'tcp://127.0.0.1:0': expected a dask scheduler's address"),
+     (["--scheduler", "tcp://host"], "--scheduler 'tcp://host': expected a dask scheduler's address"),
+     (["--scheduler-timeout", "5"], "--scheduler-timeout is the wait for a dask scheduler; give --scheduler ADDRESS too"),
+     (["--scheduler", "x:1", "--scheduler-timeout", "0"], "argument --scheduler-timeout: expected a finite number > 0, got '0'"),
+     (["--scheduler", "x:1", "--scheduler-timeout", "nan"], "argument --scheduler-timeout: expected a finite number > 0, got 'nan'"),
+     (["--scheduler", "x:1", "--scheduler-timeout", "inf"], "argument --scheduler-timeout: expected a finite number > 0, got 'inf'")],
+)  # fmt: skip
+def test_malformed_scheduler_options_are_usage_errors(tmp_path, capsys, argv, problem):
+    img = save(tmp_path / "street.png", picture())
+    before = snapshot(tmp_path)
+    with pytest.raises(SystemExit) if "argument" in problem else _no_exit():
+        code, _, err = run_main(capsys, "detect", img, *argv)
+        assert code == 2
+        assert len(err) == 1 and err[0].startswith(ERROR + problem)
+    if "argument" in problem:
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and err[0].startswith(ERROR + problem)
+    assert snapshot(tmp_path) == before
+
+
+def _no_exit():
+    from contextlib import nullcontext
+
+    return nullcontext()
+
+
+@pytest.fixture()
+def process_cluster():
+    """A LocalCluster with one worker process, whose task fails at the first worker death."""
+    distributed = pytest.importorskip("distributed", reason="dask.distributed not installed")
+    import dask
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        cluster = distributed.LocalCluster(processes=True, n_workers=1, threads_per_worker=1, dashboard_address=None)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+def _when_partial(folder: Path, action):
+    """Run ``action`` in a thread once a ``.partial`` file has grown in ``folder``."""
+    import threading
+
+    def watch():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if folder.is_dir() and any(p.stat().st_size > 20_000 for p in partials(folder) if p.exists()):
+                action()
+                return
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+@posix_only
+def test_a_worker_killed_midway_is_named_and_leaves_nothing(tmp_path, capsys, long_video, process_cluster):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "long_boxes.csv").write_text("previous boxes\n")
+    before = snapshot(out)
+    [worker] = process_cluster.workers.values()
+    pid = worker.process.pid
+    watcher = _when_partial(out, lambda: os.kill(pid, signal.SIGKILL))
+    code, _, err = run_main(capsys, "detect", long_video, "--out-dir", out, "--overwrite", "--scheduler",
+                            process_cluster.scheduler_address, "--no-progress")
+    watcher.join(5)
+    assert code == 8, err
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{long_video}: the dask worker running it (tcp://127.0.0.1:")
+    assert err[0].endswith(") died; nothing of it was written")
+    assert snapshot(out) == before  # no .partial, the previous output intact
+
+
+@posix_only
+def test_a_scheduler_gone_midway_is_named_and_leaves_nothing(tmp_path, capsys, long_video, process_cluster):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "long_boxes.csv").write_text("previous boxes\n")
+    before = snapshot(out)
+    address = process_cluster.scheduler_address
+    watcher = _when_partial(out, lambda: process_cluster.sync(process_cluster.scheduler.close))
+    code, _, err = run_main(capsys, "detect", long_video, "--out-dir", out, "--overwrite", "--scheduler", address,
+                            "--scheduler-timeout", "1", "--no-progress")
+    watcher.join(5)
+    assert code == 8, err
+    assert err == [f"{ERROR}{address}: the dask scheduler went away during the run (connection lost); 1 of 1 inputs "
+                   "unfinished, nothing of them written"]
+    assert snapshot(out) == before
