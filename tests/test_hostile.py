@@ -1434,3 +1434,35 @@ def test_a_scheduler_gone_midway_is_named_and_leaves_nothing(tmp_path, capsys, l
     assert err == [f"{ERROR}{address}: the dask scheduler went away during the run (connection lost); 1 of 1 inputs "
                    "unfinished, nothing of them written"]
     assert snapshot(out) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# u. Every exit code the command line can return is documented (README, --help), 1 only for bugs
+# ----------------------------------------------------------------------------------------------
+
+
+def _documented_codes(text: str) -> dict[int, str]:
+    """``N what`` entries of a ``0 success; 1 internal error ...; 130 interrupted`` list."""
+    import re
+
+    return {int(m[1]): m[2] for m in re.finditer(r"(?:^|[;,])\s*(\d+)\s+([^;,]+)", text.strip())}
+
+
+def test_every_exit_code_is_in_the_readme_table():
+    import re
+
+    from vehicle_detection import errors
+    from vehicle_detection.cli.detect import SOME_FAILED
+    from vehicle_detection.cli.parser import EPILOG
+
+    classes = [c for c in vars(errors).values() if isinstance(c, type) and issubclass(c, errors.VehicleDetectionError)]
+    assert {c.__name__ for c in classes} >= {"UsageError", "InputError", "ModelError", "OutputError", "DownloadError", "ClusterError"}
+    codes = {c.exit_code for c in classes} | {0, 1, SOME_FAILED, 130}
+    assert 1 not in {c.exit_code for c in classes}  # 1 is for bugs only: no user error has it
+    readme = (REPO / "README.md").read_text()
+    table = re.search(r"\*\*Exit codes\*\*:(.*?)\n\n", readme, re.S)[1].replace("\n", " ")
+    documented = _documented_codes(table)
+    assert codes <= set(documented), f"not in the README's exit codes: {sorted(codes - set(documented))}"
+    assert documented[1].startswith("internal error (a bug")
+    helped = _documented_codes(EPILOG.removeprefix("Exit codes:"))
+    assert codes <= set(helped), f"not in --help's exit codes: {sorted(codes - set(helped))}"
