@@ -41,7 +41,7 @@ import numpy as np
 from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import Detector
-from ..errors import ClusterError, InputError, UsageError, VehicleDetectionError, one_line, require
+from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, one_line, require
 from ..io import PARTIAL_SUFFIX, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
 from ..io.images import list_images
 from ..io.video import probe_video, read_frames
@@ -194,6 +194,8 @@ def detect_chunked(
     stop = n if end is None else (min(end, n) if n is not None else end)
     if stop is None:
         raise InputError(f"{path}: the frame count is unknown; cannot split into chunks (give --end)")
+    if start >= stop:
+        raise InputError(f"{path}: the frame range starts at frame {start}, after the video's last frame ({n} frames)")
     bounds = [(a, min(a + chunk_frames, stop)) for a in range(start, stop, chunk_frames)]
     detector = detector or _detector(model, horizon)
     lag = max(0, detector.config.tracker.min_hits - 1)
@@ -396,7 +398,19 @@ def _tasks(paths, out_dir, options: InputOptions, detector: Detector, *, progres
                 raise UsageError(f"{claimed[key]} and {p} would both write {o}; give them different names or out-dirs")
             claimed[key] = p
         tasks[k] = _Task(p, kind, outputs, options, detector)
+    _refuse_images_into_folder_inputs(tasks)
     return tasks, results
+
+
+def _refuse_images_into_folder_inputs(tasks: dict[int, _Task]) -> None:
+    """An annotated image may not be written into a folder of images that is an input of the
+    same batch: that input would read it as one of its own images (or a half-written one)."""
+    folders = {Path(os.path.abspath(t.path)): t.path for t in tasks.values() if t.kind == "folder"}
+    for t in tasks.values():
+        out = t.outputs.annotated
+        if t.kind == "image" and out is not None and Path(os.path.abspath(out)).parent in folders:
+            raise OutputError(f"{out}: the annotated image of {t.path} would be written into {folders[Path(os.path.abspath(out)).parent]}, "
+                              "a folder of images of this batch, and read as one of its images; choose another --out-dir")
 
 
 def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, results: dict, report,
