@@ -352,6 +352,10 @@ def detect_many(
     options = options or InputOptions()
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     _check_batch(options, jobs, chunk_frames, table)
+    if client is not None and jobs > 1:
+        raise UsageError("jobs (--jobs) are local worker processes; with a dask cluster (--scheduler) its workers run the inputs")
+    if client is None and chunk_frames is not None:
+        raise UsageError("chunk_frames (--chunk-frames) splits videos into tasks of a dask cluster; give --scheduler too")
     detector = detector or Detector()
     tasks, results = _tasks(paths, out_dir, options, detector, progress=options.progress and jobs == 1 and client is None)
     report = on_result or (lambda r: None)
