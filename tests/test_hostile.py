@@ -1476,12 +1476,16 @@ def test_every_exit_code_is_in_the_readme_table():
 
 @pytest.fixture()
 def probe_dir(tmp_path):
-    """``a.png``, ``d/x.png`` (a folder of images) and ``e/a.png`` (an image with a's stem)."""
+    """``a.png``, ``d/x.png`` (a folder of images), ``e/a.png`` (an image with a's stem), a dangling
+    symlink, a symlink to /dev/null and an existing table."""
     save(tmp_path / "a.png", picture())
     (tmp_path / "d").mkdir()
     save(tmp_path / "d" / "x.png", picture(seed=1))
     (tmp_path / "e").mkdir()
     save(tmp_path / "e" / "a.png", picture(seed=2))
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "link.parquet").symlink_to("/dev/null")
+    (tmp_path / "old.parquet").write_text("an earlier table\n")
     return tmp_path
 
 
@@ -1515,7 +1519,15 @@ OPTION_CASES = [
     ("out_is_the_input", ["{a}", "--out", "{a}"], 5, "{a}: output would overwrite the input {a}; choose another output path"),
     ("out_dir_is_a_file", ["{a}", "--out-dir", "{a}"], 5, "{tmp}/a.png/a_detected.png: cannot write output here: {a} is a file, not a folder"),
     ("out_dir_below_a_file", ["{a}", "--out-dir", "{a}/sub"], 5, "{a}/sub/a_detected.png: cannot write output here: {a} is a file, not a folder"),
-    ("out_dir_dev_null", ["{a}", "--out-dir", "/dev/null"], 5, "/dev/null/a_detected.png: cannot write output here: /dev/null is a file, not a folder"),
+    ("out_dir_dev_null", ["{a}", "--out-dir", "/dev/null"], 5, "/dev/null/a_detected.png: cannot write output here: /dev/null is a device, not a folder"),
+    ("out_dir_dangling_symlink", ["{a}", "--out-dir", "{tmp}/dangling"], 5,
+     "{tmp}/dangling/a_detected.png: cannot write output here: {tmp}/dangling is a dangling symlink, not a folder"),
+    ("table_is_an_input_output", ["{a}", "{d}", "--format", "parquet", "--table", "{tmp}/o/a_boxes.parquet", "--out-dir", "{tmp}/o"], 5,
+     "{tmp}/o/a_boxes.parquet: the table of all inputs would be the parquet table of {a}; choose another --table"),
+    ("table_is_a_symlink", ["{a}", "{d}", "--table", "{tmp}/link.parquet"], 5,
+     "{tmp}/link.parquet: output exists and is a symlink, not a regular file; refusing to replace it"),
+    ("table_exists", ["{a}", "{d}", "--table", "{tmp}/old.parquet"], 5, "{tmp}/old.parquet: output exists; pass --overwrite"),
+    ("table_below_a_file", ["{a}", "{d}", "--table", "{a}/all.parquet"], 5, "{a}/all.parquet: cannot write output here: {a} is a file, not a folder"),
     ("glob_matching_nothing", ["{tmp}/*.nothing"], 3, "{tmp}/*.nothing: no file matches this pattern"),
     ("image_into_a_folder_input", ["{a}", "{d}", "--out-dir", "{d}"], 5,
      "{d}/a_detected.png: the annotated image of {a} would be written into {d}, a folder of images of this batch"),
@@ -1527,6 +1539,8 @@ OPTION_CASES = [
 
 @pytest.mark.parametrize(("case", "argv", "code", "problem"), OPTION_CASES, ids=[c[0] for c in OPTION_CASES])
 def test_hostile_detect_options(probe_dir, capsys, case, argv, code, problem):
+    if any("parquet" in a for a in argv):
+        pytest.importorskip("pyarrow", reason="--format parquet and --table need pyarrow")
     names = {"a": probe_dir / "a.png", "d": probe_dir / "d", "tmp": probe_dir}
     argv = [a.format(**names) for a in argv]
     before = snapshot(probe_dir)
@@ -1544,8 +1558,8 @@ def test_out_dir_dev_null_in_a_batch_names_every_input(probe_dir, capsys):
     before = snapshot(probe_dir)
     code, _, err = run_main(capsys, "detect", a, d, "--out-dir", "/dev/null")
     assert code == 7
-    assert sorted(err) == [f"{ERROR}{a}: /dev/null/a_detected.png: cannot write output here: /dev/null is a file, not a folder",
-                           f"{ERROR}{d}: /dev/null/d_detected/x.png: cannot write output here: /dev/null is a file, not a folder"]
+    assert sorted(err) == [f"{ERROR}{a}: /dev/null/a_detected.png: cannot write output here: /dev/null is a device, not a folder",
+                           f"{ERROR}{d}: /dev/null/d_detected/x.png: cannot write output here: /dev/null is a device, not a folder"]
     assert snapshot(probe_dir) == before
 
 

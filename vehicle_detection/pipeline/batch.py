@@ -42,7 +42,7 @@ from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, one_line, require
-from ..io import PARTIAL_SUFFIX, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
+from ..io import PARTIAL_SUFFIX, check_output_path, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
 from ..io.images import list_images
 from ..io.video import probe_video, read_frames
 from ..tracker import Tracker, TrackerState
@@ -358,6 +358,8 @@ def detect_many(
         raise UsageError("chunk_frames (--chunk-frames) splits videos into tasks of a dask cluster; give --scheduler too")
     detector = detector or Detector()
     tasks, results = _tasks(paths, out_dir, options, detector, progress=options.progress and jobs == 1 and client is None)
+    if table is not None:
+        _check_table(Path(table), tasks, options)
     report = on_result or (lambda r: None)
     if skip_existing:
         for k in [k for k, task in tasks.items() if task.complete()]:
@@ -614,6 +616,16 @@ def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results
         for k in unfinished:
             _remove_partials(tasks[k])
         raise ClusterError(f"{one_line(exc)}; {len(unfinished)} of {len(tasks)} inputs unfinished, nothing of them written") from None
+
+
+def _check_table(dest: Path, tasks: dict[int, _Task], options: InputOptions) -> None:
+    """Refuse the table of all inputs before any work: an input, an output of an input, a special
+    file, or an existing file without ``overwrite``."""
+    check_output_path(dest, overwrite=options.overwrite, inputs=[t.path for t in tasks.values()] + list(options.inputs))
+    for t in tasks.values():
+        for o in t.outputs.tables.values():
+            if Path(os.path.abspath(o)) == Path(os.path.abspath(dest)):
+                raise OutputError(f"{dest}: the table of all inputs would be the {o.suffix[1:]} table of {t.path}; choose another --table")
 
 
 def _write_combined(dest: Path, results: list[InputResult], *, overwrite: bool) -> None:
