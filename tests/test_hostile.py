@@ -1781,3 +1781,23 @@ def test_moviepy_adapter_takes_what_the_detector_takes(case, convert):
     tracker = detector.new_tracker()
     assert adapter.detections == detector.step(as_rgb_uint8(frame), tracker)
     assert adapter.transform(lambda t: frame, 0.0).shape == (72, 128, 3)
+
+
+@posix_only
+def test_sigint_with_a_scheduler_is_130_and_leaves_whole_outputs_or_none(tmp_path, long_video, process_cluster):
+    """Ctrl-C stops the command at once (exit 130); an input a worker is running may still be
+    finished by it (dask cannot stop a running task), but only whole: never a .partial left."""
+    out = tmp_path / "o"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(long_video), "--out-dir", str(out), "--no-progress",
+         "--scheduler", process_cluster.scheduler_address],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )  # fmt: skip
+    _, err = _stop_when(proc, lambda: out.is_dir() and any(p.stat().st_size > 20_000 for p in partials(out) if p.exists()), signal.SIGINT)
+    assert proc.returncode == 130, err
+    assert err.splitlines() == ["vehicle-detection: interrupted"]
+    deadline = time.monotonic() + 120
+    while partials(out) and time.monotonic() < deadline:  # the worker finishes (or drops) the input
+        time.sleep(0.1)
+    assert partials(out) == []
+    assert sorted(p.name for p in out.iterdir()) in ([], ["long_boxes.csv", "long_detected.mp4"])
