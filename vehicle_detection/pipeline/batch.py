@@ -539,14 +539,12 @@ def _cluster_failure(exc: BaseException, client) -> ClusterError | None:
 
 def _remove_partials(task: _Task) -> None:
     """Delete the hidden ``.partial`` files of an input whose worker died (it cannot clean up after itself)."""
-    files = task.outputs.files(task.kind, task.images())
-    for parent, names in itertools.groupby(sorted(files), key=lambda f: f.parent):
-        for name in {f.name for f in names}:
-            for tmp in parent.glob(f".{glob.escape(name)}.*{PARTIAL_SUFFIX}"):
-                try:
-                    tmp.unlink()
-                except OSError:
-                    pass
+    for out in task.outputs.files(task.kind, task.images()):
+        for tmp in out.parent.glob(f".{glob.escape(out.name)}.*{PARTIAL_SUFFIX}"):
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
 
 
 def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None:
