@@ -2,7 +2,11 @@
 
 Special files as outputs, absurd image shapes, failed ``--overwrite`` runs, SIGTERM / SIGHUP,
 full disks, training images as the model path, feature configurations the search cannot use,
-tiny data sets, unwritable image formats, a closed stdout pipe, EXIF orientation.
+tiny data sets, unwritable image formats, a closed stdout pipe, EXIF orientation; then the
+surfaces of the batch round (sections t to x): a dask cluster unreachable or lost midway, the
+documented exit codes, detect's options and their combinations, outputs that collide or point at
+inputs, a full disk, hostile media and signals during a batch with ``--jobs 2``, hostile frames
+through the moviepy adapter.
 
 Most cases run ``main([...])`` in this process (exact return code and stderr, fast); the signal
 and pipe cases run ``python -m vehicle_detection.cli`` in a subprocess, as a shell would.
