@@ -2,7 +2,11 @@
 
 Special files as outputs, absurd image shapes, failed ``--overwrite`` runs, SIGTERM / SIGHUP,
 full disks, training images as the model path, feature configurations the search cannot use,
-tiny data sets, unwritable image formats, a closed stdout pipe, EXIF orientation.
+tiny data sets, unwritable image formats, a closed stdout pipe, EXIF orientation; then the
+surfaces of the batch round (sections t to x): a dask cluster unreachable or lost midway, the
+documented exit codes, detect's options and their combinations, outputs that collide or point at
+inputs, a full disk, hostile media and signals during a batch with ``--jobs 2``, hostile frames
+through the moviepy adapter.
 
 Most cases run ``main([...])`` in this process (exact return code and stderr, fast); the signal
 and pipe cases run ``python -m vehicle_detection.cli`` in a subprocess, as a shell would.
@@ -1306,3 +1310,498 @@ def test_inputs_linked_to_dev_zero_are_refused_without_reading(tmp_path):
     results = json.loads(proc.stdout.splitlines()[-1])
     assert results == [[code, [ERROR + message]] for _, code, message in cases]
     assert snapshot(tmp_path) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# t. A dask cluster that cannot be reached, or goes away midway, is exit 8 naming its address
+#    (was: a 30 s wait, then "internal error: OSError: Timed out trying to connect", exit 1)
+# ----------------------------------------------------------------------------------------------
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@needs_media
+def test_unreachable_scheduler_is_exit_8_naming_the_address(tmp_path, capsys):
+    pytest.importorskip("distributed", reason="dask.distributed not installed")
+    address = f"tcp://127.0.0.1:{_free_port()}"  # nobody listens there
+    out = tmp_path / "o"
+    code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out-dir", out, "--scheduler", address, "--scheduler-timeout", "1")
+    assert code == 8
+    assert err == [f"{ERROR}{address}: the dask scheduler cannot be reached (no answer within 1 s; is 'dask scheduler' running "
+                   "there, and the port open? --scheduler-timeout waits longer)"]
+    assert not out.exists()
+    # HOST:PORT without a scheme is a tcp address, as dask's own tools take it.
+    code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out-dir", out, "--scheduler", address[6:], "--scheduler-timeout", "0.5")
+    assert code == 8 and err[0].startswith(f"{ERROR}{address}: the dask scheduler cannot be reached (no answer within 0.5 s")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "problem"),
+    [(["--scheduler", "nonsense"], "--scheduler 'nonsense': expected a dask scheduler's address"),
+     (["--scheduler", ""], "--scheduler '': expected a dask scheduler's address"),
+     (["--scheduler", "http://127.0.0.1:8786"], "--scheduler 'http://127.0.0.1:8786': expected a dask scheduler's address"),
+     (["--scheduler", "tcp://127.0.0.1:99999"], "--scheduler 'tcp://127.0.0.1:99999': expected a dask scheduler's address"),
+     (["--scheduler", "tcp://127.0.0.1:0"], "--scheduler 'tcp://127.0.0.1:0': expected a dask scheduler's address"),
+     (["--scheduler", "tcp://host"], "--scheduler 'tcp://host': expected a dask scheduler's address"),
+     (["--scheduler-timeout", "5"], "--scheduler-timeout is the wait for a dask scheduler; give --scheduler ADDRESS too"),
+     (["--scheduler", "x:1", "--scheduler-timeout", "0"], "argument --scheduler-timeout: expected a finite number > 0, got '0'"),
+     (["--scheduler", "x:1", "--scheduler-timeout", "nan"], "argument --scheduler-timeout: expected a finite number > 0, got 'nan'"),
+     (["--scheduler", "x:1", "--scheduler-timeout", "inf"], "argument --scheduler-timeout: expected a finite number > 0, got 'inf'")],
+)  # fmt: skip
+def test_malformed_scheduler_options_are_usage_errors(tmp_path, capsys, argv, problem):
+    img = save(tmp_path / "street.png", picture())
+    before = snapshot(tmp_path)
+    with pytest.raises(SystemExit) if "argument" in problem else _no_exit():
+        code, _, err = run_main(capsys, "detect", img, *argv)
+        assert code == 2
+        assert len(err) == 1 and err[0].startswith(ERROR + problem)
+    if "argument" in problem:
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and err[0].startswith(ERROR + problem)
+    assert snapshot(tmp_path) == before
+
+
+def _no_exit():
+    from contextlib import nullcontext
+
+    return nullcontext()
+
+
+@pytest.fixture()
+def process_cluster():
+    """A LocalCluster with one worker process, whose task fails at the first worker death."""
+    distributed = pytest.importorskip("distributed", reason="dask.distributed not installed")
+    import dask
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        cluster = distributed.LocalCluster(processes=True, n_workers=1, threads_per_worker=1, dashboard_address=None)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+def _when_partial(folder: Path, action):
+    """Run ``action`` in a thread once a ``.partial`` file has grown in ``folder``."""
+    import threading
+
+    def watch():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if folder.is_dir() and any(p.stat().st_size > 20_000 for p in partials(folder) if p.exists()):
+                action()
+                return
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+@posix_only
+def test_a_worker_killed_midway_is_named_and_leaves_nothing(tmp_path, capsys, long_video, process_cluster):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "long_boxes.csv").write_text("previous boxes\n")
+    before = snapshot(out)
+    [worker] = process_cluster.workers.values()
+    pid = worker.process.pid
+    watcher = _when_partial(out, lambda: os.kill(pid, signal.SIGKILL))
+    code, _, err = run_main(capsys, "detect", long_video, "--out-dir", out, "--overwrite", "--scheduler",
+                            process_cluster.scheduler_address, "--no-progress")
+    watcher.join(5)
+    assert code == 8, err
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{long_video}: the dask worker running it (tcp://127.0.0.1:")
+    assert err[0].endswith(") died; nothing of it was written")
+    assert snapshot(out) == before  # no .partial, the previous output intact
+
+
+@posix_only
+def test_a_scheduler_gone_midway_is_named_and_leaves_nothing(tmp_path, capsys, long_video, process_cluster):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "long_boxes.csv").write_text("previous boxes\n")
+    before = snapshot(out)
+    address = process_cluster.scheduler_address
+    watcher = _when_partial(out, lambda: process_cluster.sync(process_cluster.scheduler.close))
+    code, _, err = run_main(capsys, "detect", long_video, "--out-dir", out, "--overwrite", "--scheduler", address,
+                            "--scheduler-timeout", "1", "--no-progress")
+    watcher.join(5)
+    assert code == 8, err
+    assert err == [f"{ERROR}{address}: the dask scheduler went away during the run (connection lost); 1 of 1 inputs "
+                   "unfinished, nothing of them written"]
+    assert snapshot(out) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# u. Every exit code the command line can return is documented (README, --help), 1 only for bugs
+# ----------------------------------------------------------------------------------------------
+
+
+def _documented_codes(text: str) -> dict[int, str]:
+    """``N what`` entries of a ``0 success; 1 internal error ...; 130 interrupted`` list."""
+    import re
+
+    return {int(m[1]): m[2] for m in re.finditer(r"(?:^|[;,])\s*(\d+)\s+([^;,]+)", text.strip())}
+
+
+def test_every_exit_code_is_in_the_readme_table():
+    import re
+
+    from vehicle_detection import errors
+    from vehicle_detection.cli.detect import SOME_FAILED
+    from vehicle_detection.cli.parser import EPILOG
+
+    classes = [c for c in vars(errors).values() if isinstance(c, type) and issubclass(c, errors.VehicleDetectionError)]
+    assert {c.__name__ for c in classes} >= {"UsageError", "InputError", "ModelError", "OutputError", "DownloadError", "ClusterError"}
+    codes = {c.exit_code for c in classes} | {0, 1, SOME_FAILED, 130}
+    assert 1 not in {c.exit_code for c in classes}  # 1 is for bugs only: no user error has it
+    readme = (REPO / "README.md").read_text()
+    table = re.search(r"\*\*Exit codes\*\*:(.*?)\n\n", readme, re.S)[1].replace("\n", " ")
+    documented = _documented_codes(table)
+    assert codes <= set(documented), f"not in the README's exit codes: {sorted(codes - set(documented))}"
+    assert documented[1].startswith("internal error (a bug")
+    helped = _documented_codes(EPILOG.removeprefix("Exit codes:"))
+    assert codes <= set(helped), f"not in --help's exit codes: {sorted(codes - set(helped))}"
+
+
+# ----------------------------------------------------------------------------------------------
+# v. Options and combinations of detect, alone and in a batch: the exit code, one line, nothing
+#    written when refused
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def probe_dir(tmp_path):
+    """``a.png``, ``d/x.png`` (a folder of images), ``e/a.png`` (an image with a's stem), a dangling
+    symlink, a symlink to /dev/null and an existing table."""
+    save(tmp_path / "a.png", picture())
+    (tmp_path / "d").mkdir()
+    save(tmp_path / "d" / "x.png", picture(seed=1))
+    (tmp_path / "e").mkdir()
+    save(tmp_path / "e" / "a.png", picture(seed=2))
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "link.parquet").symlink_to("/dev/null")
+    (tmp_path / "old.parquet").write_text("an earlier table\n")
+    return tmp_path
+
+
+OPTION_CASES = [
+    ("jobs_0", ["{a}", "--jobs", "0"], 2, "argument --jobs: expected a whole number >= 1, got '0'"),
+    ("jobs_negative", ["{a}", "{d}", "--jobs", "-1"], 2, "argument --jobs: expected a whole number >= 1, got '-1'"),
+    ("frames_open", ["{a}", "--frames", "5-"], 2, "--frames: expected A-B (inclusive decoded frame indexes), got '5-'"),
+    ("frames_negative", ["{a}", "--frames", "-5"], 2, "--frames: expected A-B (inclusive decoded frame indexes), got '-5'"),
+    ("frames_reversed", ["{a}", "{d}", "--frames", "5-3"], 2, "--frames: expected A-B with 0 <= A <= B, got '5-3'"),
+    ("frames_and_start", ["{a}", "--frames", "1-2", "--start", "1"], 2, "give --frames A-B or --start/--end, not both"),
+    ("start_negative", ["{a}", "--start", "-3"], 2, "--start -3 --end None: expected 0 <= start < end"),
+    ("end_at_start", ["{a}", "--start", "4", "--end", "4"], 2, "--start 4 --end 4: expected 0 <= start < end"),
+    ("format_unknown", ["{a}", "{d}", "--format", "csv,xml"], 2, "unknown table format 'xml'; choose from csv, parquet, mot, coco, lanes"),
+    ("format_upper_case", ["{a}", "--format", "CSV"], 2, "unknown table format 'CSV'; choose from csv, parquet, mot, coco, lanes"),
+    ("format_lanes_without_camera", ["{a}", "{d}", "--format", "lanes"], 2, "--lanes needs --camera CAMERA.json with a bird's-eye transform"),
+    ("chunk_frames_0", ["{a}", "--chunk-frames", "0"], 2, "argument --chunk-frames: expected a whole number >= 1, got '0'"),
+    ("chunk_frames_with_video", ["{a}", "--chunk-frames", "5"], 2, "chunk_frames (--chunk-frames) needs a number >= 1 and no video"),
+    ("chunk_frames_without_scheduler", ["{a}", "--chunk-frames", "5", "--no-video"], 2,
+     "chunk_frames (--chunk-frames) splits videos into tasks of a dask cluster; give --scheduler too"),
+    ("jobs_with_scheduler", ["{a}", "--jobs", "2", "--scheduler", "tcp://127.0.0.1:1"], 2,
+     "jobs (--jobs) are local worker processes; with a dask cluster (--scheduler) its workers run the inputs"),
+    ("table_not_parquet", ["{a}", "{d}", "--table", "{tmp}/all.csv"], 2, "--table {tmp}/all.csv: the table of all inputs is a Parquet file"),
+    ("out_in_a_batch", ["{a}", "--out", "{tmp}/o.png", "--jobs", "2"], 2, "--out, --boxes and --lanes-csv name the outputs of one input"),
+    ("boxes_in_a_batch", ["{a}", "{d}", "--boxes", "{tmp}/b.csv"], 2, "--out, --boxes and --lanes-csv name the outputs of one input"),
+    ("out_and_no_video", ["{a}", "--out", "{tmp}/x.png", "--no-video"], 2, "--out names the annotated output, and --no-video writes none"),
+    ("same_stem_in_one_out_dir", ["{a}", "{tmp}/e/a.png", "--out-dir", "{tmp}/o"], 2,
+     "{a} and {tmp}/e/a.png would both write {tmp}/o/a_detected.png; give them different names or out-dirs"),
+    ("out_and_boxes_the_same_file", ["{a}", "--out", "{tmp}/same.csv", "--boxes", "{tmp}/same.csv"], 5,
+     "{tmp}/same.csv: the annotated output and the boxes CSV cannot be the same file"),
+    ("boxes_is_the_input", ["{a}", "--boxes", "{a}"], 5, "{a}: output would overwrite the input {a}; choose another output path"),
+    ("out_is_the_input", ["{a}", "--out", "{a}"], 5, "{a}: output would overwrite the input {a}; choose another output path"),
+    ("out_dir_is_a_file", ["{a}", "--out-dir", "{a}"], 5, "{tmp}/a.png/a_detected.png: cannot write output here: {a} is a file, not a folder"),
+    ("out_dir_below_a_file", ["{a}", "--out-dir", "{a}/sub"], 5, "{a}/sub/a_detected.png: cannot write output here: {a} is a file, not a folder"),
+    ("out_dir_dev_null", ["{a}", "--out-dir", "/dev/null"], 5, "/dev/null/a_detected.png: cannot write output here: /dev/null is a device, not a folder"),
+    ("out_dir_dangling_symlink", ["{a}", "--out-dir", "{tmp}/dangling"], 5,
+     "{tmp}/dangling/a_detected.png: cannot write output here: {tmp}/dangling is a dangling symlink, not a folder"),
+    ("table_is_an_input_output", ["{a}", "{d}", "--format", "parquet", "--table", "{tmp}/o/a_boxes.parquet", "--out-dir", "{tmp}/o"], 5,
+     "{tmp}/o/a_boxes.parquet: the table of all inputs would be the parquet table of {a}; choose another --table"),
+    ("table_is_a_symlink", ["{a}", "{d}", "--table", "{tmp}/link.parquet"], 5,
+     "{tmp}/link.parquet: output exists and is a symlink, not a regular file; refusing to replace it"),
+    ("table_exists", ["{a}", "{d}", "--table", "{tmp}/old.parquet"], 5, "{tmp}/old.parquet: output exists; pass --overwrite"),
+    ("table_below_a_file", ["{a}", "{d}", "--table", "{a}/all.parquet"], 5, "{a}/all.parquet: cannot write output here: {a} is a file, not a folder"),
+    ("glob_matching_nothing", ["{tmp}/*.nothing"], 3, "{tmp}/*.nothing: no file matches this pattern"),
+    ("image_into_a_folder_input", ["{a}", "{d}", "--out-dir", "{d}"], 5,
+     "{d}/a_detected.png: the annotated image of {a} would be written into {d}, a folder of images of this batch"),
+    ("image_beside_into_a_folder_input", ["{tmp}/e", "{tmp}/e/a.png"], 5,
+     "{tmp}/e/a_detected.png: the annotated image of {tmp}/e/a.png would be written into {tmp}/e, a folder of images"),
+    ("folder_range_past_its_images", ["{d}", "--frames", "5-9"], 3, "{d}: the frame range 5 to 9 holds none of its 1 images"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("case", "argv", "code", "problem"), OPTION_CASES, ids=[c[0] for c in OPTION_CASES])
+def test_hostile_detect_options(probe_dir, capsys, case, argv, code, problem):
+    if any("parquet" in a for a in argv):
+        pytest.importorskip("pyarrow", reason="--format parquet and --table need pyarrow")
+    names = {"a": probe_dir / "a.png", "d": probe_dir / "d", "tmp": probe_dir}
+    argv = [a.format(**names) for a in argv]
+    before = snapshot(probe_dir)
+    try:
+        rc, _, err = run_main(capsys, "detect", *argv, "--no-progress")
+    except SystemExit as exc:  # argparse's own errors
+        rc, err = exc.code, capsys.readouterr().err.splitlines()
+    assert rc == code, err
+    assert len(err) == 1 and err[0].startswith(ERROR + problem.format(**names)), err
+    assert snapshot(probe_dir) == before  # refused before any work: nothing written, no folder made
+
+
+def test_out_dir_dev_null_in_a_batch_names_every_input(probe_dir, capsys):
+    a, d = probe_dir / "a.png", probe_dir / "d"
+    before = snapshot(probe_dir)
+    code, _, err = run_main(capsys, "detect", a, d, "--out-dir", "/dev/null")
+    assert code == 7
+    assert sorted(err) == [f"{ERROR}{a}: /dev/null/a_detected.png: cannot write output here: /dev/null is a device, not a folder",
+                           f"{ERROR}{d}: /dev/null/d_detected/x.png: cannot write output here: /dev/null is a device, not a folder"]
+    assert snapshot(probe_dir) == before
+
+
+@needs_media
+@pytest.mark.parametrize(
+    "argv", [["--frames", "1000-2000"], ["--start", "38"], ["--start", "38", "--jobs", "2"]], ids=["frames", "start", "batch"]
+)
+def test_video_range_past_the_last_frame_is_exit_3_not_an_empty_table(tmp_path, capsys, argv):
+    clip = tmp_path / "clip.mp4"
+    shutil.copy(TEST_VIDEO, clip)  # 38 frames
+    start = argv[1].split("-")[0]
+    code, _, err = run_main(capsys, "detect", clip, "--no-video", "--no-progress", *argv)
+    assert code == 3  # was 0, with an empty CSV that said "no cars"
+    assert err == [f"{ERROR}{clip}: the frame range starts at frame {start}, after the video's last frame (38 frames)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
+    # The last frame alone is a range.
+    assert run_main(capsys, "detect", clip, "--no-video", "--no-progress", "--start", "37")[0] == 0
+
+
+@needs_media
+def test_chunked_range_past_the_last_frame():
+    from vehicle_detection.pipeline.batch import detect_chunked
+
+    with pytest.raises(InputError, match=r"the frame range starts at frame 40, after the video's last frame \(38 frames\)"):
+        detect_chunked(TEST_VIDEO, 5, start=40)
+
+
+# ----------------------------------------------------------------------------------------------
+# w. A batch under stress: a full disk, hostile media, interrupts with --jobs 2
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def small_tmpfs(tmp_path):
+    """A 1 MiB tmpfs (root, Linux); skipped where mounting is not permitted (CI containers)."""
+    where = tmp_path / "full"
+    where.mkdir()
+    if sys.platform != "linux" or os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root on Linux")
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(where)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"mount -t tmpfs not permitted here: {proc.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+def _committed_whole_or_not_at_all(out: Path, stems, video=True) -> list[str]:
+    """Per input: both its outputs, or neither; never a .partial. Returns the stems written."""
+    left = sorted(p.name for p in out.iterdir())
+    assert not [n for n in left if n.endswith(PARTIAL_SUFFIX)], left
+    written = []
+    for stem in stems:
+        mine = [n for n in left if n.startswith(f"{stem}_")]
+        assert mine in ([], sorted([f"{stem}_boxes.csv", f"{stem}_detected.mp4"] if video else [f"{stem}_boxes.csv"])), left
+        if mine:
+            written.append(stem)
+    return written
+
+
+@posix_only
+@needs_media
+def test_full_disk_during_a_batch_with_jobs_2(tmp_path, small_tmpfs):
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for stem in ("a", "b", "c"):
+        shutil.copy(TEST_VIDEO, videos / f"{stem}.mp4")  # each annotated video is about 1.7 MB
+    (small_tmpfs / "a_boxes.csv").write_text("previous boxes\n")
+    proc = run_cli("detect", videos, "--out-dir", small_tmpfs, "--jobs", "2", "--no-progress", "--overwrite", "--preset", "ultrafast")
+    assert proc.returncode == 7, proc.stderr
+    err = proc.stderr.splitlines()
+    assert err and all(line.startswith(ERROR) and line.endswith("No space left on device") for line in err), err
+    if not (small_tmpfs / "a_detected.mp4").exists():  # a failed: its previous output survives
+        assert (small_tmpfs / "a_boxes.csv").read_text() == "previous boxes\n"
+        (small_tmpfs / "a_boxes.csv").unlink()
+    written = _committed_whole_or_not_at_all(small_tmpfs, "abc")
+    assert len(written) + len(err) == 3
+
+
+def test_full_disk_during_a_batch_injected(tmp_path, capsys, monkeypatch):
+    """The same without a tmpfs: the second input's annotated image hits ENOSPC."""
+    for stem in ("a", "b"):
+        save(tmp_path / f"{stem}.png", picture(seed=ord(stem)))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "b_boxes.csv").write_text("previous boxes\n")
+    real_save = Image.Image.save
+
+    def failing_save(self, fp, *args, **kwargs):
+        if isinstance(fp, (str, os.PathLike)) and ".b_detected.png." in os.fspath(fp):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_save(self, fp, *args, **kwargs)
+
+    monkeypatch.setattr(Image.Image, "save", failing_save)
+    code, _, err = run_main(capsys, "detect", tmp_path / "a.png", tmp_path / "b.png", "--out-dir", out, "--overwrite")
+    assert code == 7
+    assert err == [f"{ERROR}{tmp_path / 'b.png'}: {out / 'b_detected.png'}: cannot write output: No space left on device"]
+    assert sorted(p.name for p in out.iterdir()) == ["a_boxes.csv", "a_detected.png", "b_boxes.csv"]
+    assert (out / "b_boxes.csv").read_text() == "previous boxes\n"
+
+
+@posix_only
+@needs_media
+def test_hostile_media_in_a_batch_with_jobs_2(tmp_path):
+    src = TEST_VIDEO.read_bytes()
+    vids = tmp_path / "in"
+    vids.mkdir()
+    (vids / "good.mp4").write_bytes(src)
+    (vids / "text.mp4").write_text("hello\n")
+    (vids / "empty.mp4").write_bytes(b"")
+    (vids / "trunc.mp4").write_bytes(src[:300_000])
+    (vids / "headless.mp4").write_bytes(src[-300_000:])
+    (vids / "zero.mp4").symlink_to("/dev/zero")  # not a regular file: not an input of the folder
+    os.mkfifo(vids / "fifo.mp4")
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    shutil.copy(TEST_IMAGES / "test1.jpg", shots / "test1.jpg")
+    (shots / "zcut.jpg").write_bytes((TEST_IMAGES / "test2.jpg").read_bytes()[:5000])
+    out = tmp_path / "out"
+    proc = run_cli("detect", vids, shots, vids / "fifo.mp4", vids / "zero.mp4", "--out-dir", out, "--jobs", "2", "--no-video",
+                   "--no-progress")
+    assert proc.returncode == 7, proc.stderr
+    assert sorted(proc.stderr.splitlines()) == sorted([
+        f"{ERROR}{vids / 'empty.mp4'}: file is empty",
+        f"{ERROR}{vids / 'headless.mp4'}: not a readable video file (Invalid data found when processing input)",
+        f"{ERROR}{vids / 'text.mp4'}: not a readable video file (Invalid data found when processing input)",
+        f"{ERROR}{vids / 'trunc.mp4'}: video is damaged or truncated: decoded 4 of the 38 frames the file declares, then the "
+        "demuxer found a damaged or cut-short packet",
+        f"{ERROR}{shots / 'zcut.jpg'}: corrupt or truncated image: image file is truncated (20 bytes not processed)",
+        f"{ERROR}{vids / 'fifo.mp4'}: is a FIFO (named pipe), not a regular file (video file expected)",
+        f"{ERROR}{vids / 'zero.mp4'}: is a device, not a regular file (video file expected)",
+    ])  # fmt: skip
+    assert sorted(p.name for p in out.iterdir()) == ["good_boxes.csv"]
+
+
+@posix_only
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_to_the_parent_of_jobs_2_keeps_previous_outputs(tmp_path, long_video, sig):
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for stem in ("a", "b", "c"):
+        shutil.copy(long_video, videos / f"{stem}.mp4")
+    out = tmp_path / "out"
+    out.mkdir()
+    for stem in ("a", "b", "c"):
+        (out / f"{stem}_boxes.csv").write_text(f"previous boxes of {stem}\n")
+        (out / f"{stem}_detected.mp4").write_bytes(b"previous video")
+    before = snapshot(out)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(videos), "--out-dir", str(out), "--jobs", "2",
+         "--no-progress", "--overwrite"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )  # fmt: skip
+
+    def encoding():
+        return any(p.stat().st_size > 100_000 for p in partials(out) if p.exists())
+
+    _, err = _stop_when(proc, encoding, sig)
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1] == "vehicle-detection: interrupted"
+    assert partials(out) == []
+    now = snapshot(out)
+    for stem in "abc":  # each input: its previous outputs as they were, or both new ones
+        mine = {k: v for k, v in now.items() if k.startswith(f"{stem}_")}
+        old = {k: v for k, v in before.items() if k.startswith(f"{stem}_")}
+        assert mine == old or all(mine[k] != old[k] for k in old), (stem, mine)
+
+
+# ----------------------------------------------------------------------------------------------
+# x. Hostile frames through the moviepy adapter
+# ----------------------------------------------------------------------------------------------
+
+_F = np.random.default_rng(7).integers(0, 256, (72, 128, 3)).astype(np.uint8)
+ADAPTER_REFUSED = [
+    ("float_0_1", _F / 255.0, "frame 0: expected an RGB uint8 image, got dtype float64 (0-1 versus 0-255 is ambiguous"),
+    ("float_nan", np.full((72, 128, 3), np.nan), "frame 0: expected an RGB uint8 image, got dtype float64"),
+    ("int64", _F.astype(np.int64), "frame 0: expected an RGB uint8 image, got dtype int64"),
+    ("bool", _F > 128, "frame 0: expected an RGB uint8 image, got dtype bool"),
+    ("object", np.array([[None]]), "frame 0: expected an RGB uint8 image, got dtype object"),
+    ("zero_size", np.zeros((0, 0, 3), np.uint8), "frame 0: empty image of shape (0, 0, 3)"),
+    ("zero_width", np.zeros((72, 0, 3), np.uint8), "frame 0: empty image of shape (72, 0, 3)"),
+    ("one_dimension", np.zeros(10, np.uint8), "frame 0: expected shape (H, W), (H, W, 3) or (H, W, 4), got (10,)"),
+    ("batch_of_frames", np.zeros((2, 72, 128, 3), np.uint8), "frame 0: expected shape (H, W), (H, W, 3) or (H, W, 4), got (2, 72, 128, 3)"),
+    ("two_channels", np.zeros((72, 128, 2), np.uint8), "frame 0: expected shape (H, W), (H, W, 3) or (H, W, 4), got (72, 128, 2)"),
+    ("too_wide", np.zeros((10, 2000, 3), np.uint8), "frame 0: image of 2000x10 pixels is too wide (more than 8:1); crop it first"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("case", "frame", "problem"), ADAPTER_REFUSED, ids=[c[0] for c in ADAPTER_REFUSED])
+def test_moviepy_adapter_refuses_hostile_frames(default_model, case, frame, problem):
+    import vehicle_detection as vd
+
+    adapter = vd.MoviepyAdapter()
+    with pytest.raises(InputError) as info:
+        adapter(frame)
+    assert str(info.value).startswith(problem)
+    assert adapter.frames_processed == 0  # the tracker did not move
+    with pytest.raises(InputError):
+        adapter.transform(lambda t: frame, 0.0)
+    assert adapter(_F).shape == _F.shape and adapter.frames_processed == 1  # a good frame still works
+
+
+@pytest.mark.parametrize(
+    ("case", "convert"),
+    [("grey", lambda f: f[..., 0]), ("rgba", lambda f: np.dstack([f, np.full(f.shape[:2], 255, np.uint8)])),
+     ("uint16", lambda f: f.astype(np.uint16) * 257), ("strided", lambda f: np.repeat(np.repeat(f, 2, 0), 2, 1)[::2, ::2])],
+)  # fmt: skip
+def test_moviepy_adapter_takes_what_the_detector_takes(case, convert):
+    """Grey, RGBA and uint16 frames were searched but then crashed the drawing (ValueError)."""
+    import vehicle_detection as vd
+    from vehicle_detection.io.images import as_rgb_uint8
+
+    detector = vd.Detector()
+    adapter = vd.MoviepyAdapter(detector, draw=True)
+    frame = convert(_F)
+    out = adapter(frame)
+    assert out.dtype == np.uint8 and out.shape == (72, 128, 3)
+    tracker = detector.new_tracker()
+    assert adapter.detections == detector.step(as_rgb_uint8(frame), tracker)
+    assert adapter.transform(lambda t: frame, 0.0).shape == (72, 128, 3)
+
+
+@posix_only
+def test_sigint_with_a_scheduler_is_130_and_leaves_whole_outputs_or_none(tmp_path, long_video, process_cluster):
+    """Ctrl-C stops the command at once (exit 130); an input a worker is running may still be
+    finished by it (dask cannot stop a running task), but only whole: never a .partial left."""
+    out = tmp_path / "o"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(long_video), "--out-dir", str(out), "--no-progress",
+         "--scheduler", process_cluster.scheduler_address],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )  # fmt: skip
+    _, err = _stop_when(proc, lambda: out.is_dir() and any(p.stat().st_size > 20_000 for p in partials(out) if p.exists()), signal.SIGINT)
+    assert proc.returncode == 130, err
+    assert err.splitlines() == ["vehicle-detection: interrupted"]
+    deadline = time.monotonic() + 120
+    while partials(out) and time.monotonic() < deadline:  # the worker finishes (or drops) the input
+        time.sleep(0.1)
+    assert partials(out) == []
+    assert sorted(p.name for p in out.iterdir()) in ([], ["long_boxes.csv", "long_detected.mp4"])

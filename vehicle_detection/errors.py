@@ -20,6 +20,7 @@ __all__ = [
     "ModelError",
     "OutputError",
     "DownloadError",
+    "ClusterError",
     "MissingDependencyError",
     "one_line",
     "require",
@@ -66,6 +67,16 @@ class DownloadError(VehicleDetectionError, OSError):
     """A download failed, was cut short, or did not match its checksum."""
 
     exit_code = 6
+
+
+class ClusterError(VehicleDetectionError, ConnectionError):
+    """A dask scheduler cannot be reached, or it or a worker went away during the run (exit status 8).
+
+    The message names the scheduler's (or the worker's) address; the inputs it left unfinished
+    have no output (not even a hidden ``.partial`` file).
+    """
+
+    exit_code = 8
 
 
 class MissingDependencyError(VehicleDetectionError, ImportError):

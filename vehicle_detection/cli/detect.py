@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ..errors import InputError, UsageError
 from ..io import Encoding
-from ..pipeline.batch import detect_many
+from ..pipeline.batch import SCHEDULER_TIMEOUT, detect_many
 from ..pipeline.inputs import VIDEO_EXTENSIONS, InputOptions, InputResult, default_outputs, input_kind, run_input, unknown_type
 from ..road.survey import Road
 from .options import load_camera, load_detector
@@ -36,6 +36,8 @@ def run(args) -> int:
     if batch and (args.out or args.boxes or args.lanes_csv):
         raise UsageError("--out, --boxes and --lanes-csv name the outputs of one input; in a batch use --out-dir "
                          "(default names) and --format lanes")
+    if args.scheduler_timeout is not None and args.scheduler is None:
+        raise UsageError("--scheduler-timeout is the wait for a dask scheduler; give --scheduler ADDRESS too")
     options = _options(args)
     return _detect_many(args, options) if batch else _detect_one(args, options)
 
@@ -133,6 +135,7 @@ def _detect_many(args, options: InputOptions) -> int:
     results = detect_many(
         args.inputs, args.out_dir, options, detector=detector, jobs=args.jobs, skip_existing=args.skip_existing,
         table=args.table, client=args.scheduler, chunk_frames=args.chunk_frames, on_result=report,
+        scheduler_timeout=args.scheduler_timeout or SCHEDULER_TIMEOUT,
     )
     failed = [r for r in results if not r.ok]
     done = sum(1 for r in results if r.ok and not r.skipped)

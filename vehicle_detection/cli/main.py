@@ -8,7 +8,8 @@ before that line (the exit code stays the same).
 
 Exit codes: 0 success; 1 internal error (a bug: please report it); 2 bad command line;
 3 bad input file; 4 bad or mismatched model file; 5 output refused or not writable;
-6 download failed; 7 some inputs of a batch failed (each named on stderr); 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
+6 download failed; 7 some inputs of a batch failed (each named on stderr); 8 a dask scheduler
+cannot be reached, or it or a worker went away during the run; 130 interrupted (Ctrl-C, SIGTERM or SIGHUP).
 
 A closed standard output (``vehicle-detection ... | head -1``) does not stop a run: the rest of
 the report is discarded, the outputs are written, and the exit status is the run's own.

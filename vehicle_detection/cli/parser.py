@@ -14,7 +14,7 @@ from ..io.video import X264_PRESETS
 __all__ = ["build_parser"]
 
 EPILOG = ("Exit codes: 0 ok, 1 internal error, 2 usage, 3 bad input, 4 bad model, 5 output refused, 6 download failed, "
-          "7 some inputs of a batch failed, 130 interrupted.")
+          "7 some inputs of a batch failed, 8 dask cluster unreachable or lost, 130 interrupted.")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -185,6 +185,8 @@ def _add_detect(sub) -> None:
     b.add_argument("--table", default=None, metavar="ALL.parquet", help="also one Parquet table of all inputs, with a video column")
     b.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run one task per input on a dask.distributed cluster (needs vehicle-detection[distributed])")
+    b.add_argument("--scheduler-timeout", type=_positive_float, default=None, metavar="SECONDS",
+                   help="with --scheduler: wait this long for the scheduler to answer (default 10); exit 8 when it does not")
     b.add_argument("--chunk-frames", type=_positive_int, default=None, metavar="N",
                    help="with --scheduler and --no-video: split each video into chunks of N frames (the tracker continues across)")
     p.add_argument("--model", default=None, help="model file (default: the embedded model)")

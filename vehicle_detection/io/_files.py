@@ -128,7 +128,8 @@ def check_output_path(
     for folder in dest.parents:  # the nearest existing ancestor must be a folder
         if folder.exists() or folder.is_symlink():
             if not folder.is_dir():
-                raise OutputError(f"{dest}: cannot write output here: {folder} is a file, not a folder")
+                what = "a dangling symlink" if not folder.exists() else _special_kind(folder.resolve()) or "a file"
+                raise OutputError(f"{dest}: cannot write output here: {folder} is {what}, not a folder")
             break
     if dest.exists() and not overwrite:
         raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")

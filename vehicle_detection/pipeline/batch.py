@@ -23,12 +23,16 @@ from a module that imports nothing heavy) before numba is loaded in it.
 
 from __future__ import annotations
 
+import glob
 import itertools
+import logging
 import multiprocessing
 import os
+import re
 import time
 from collections.abc import Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -37,8 +41,8 @@ import numpy as np
 from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import Detector
-from ..errors import InputError, UsageError, VehicleDetectionError, one_line
-from ..io import interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
+from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, one_line, require
+from ..io import PARTIAL_SUFFIX, check_output_path, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
 from ..io.images import list_images
 from ..io.video import probe_video, read_frames
 from ..tracker import Tracker, TrackerState
@@ -46,7 +50,10 @@ from ._threads import init_worker, set_numba_threads
 from .inputs import InputOptions, InputResult, Outputs, check_input_outputs, default_outputs, expand_inputs, run_input
 from .video import SEARCH_WORKERS
 
-__all__ = ["detect_many", "track_chunk", "join_chunks", "detect_chunked"]
+__all__ = ["detect_many", "track_chunk", "join_chunks", "detect_chunked", "connect", "SCHEDULER_TIMEOUT"]
+
+#: Seconds to wait for a dask scheduler to answer, when connecting and when it stops answering.
+SCHEDULER_TIMEOUT = 10.0
 
 
 @dataclass(frozen=True)
@@ -187,6 +194,8 @@ def detect_chunked(
     stop = n if end is None else (min(end, n) if n is not None else end)
     if stop is None:
         raise InputError(f"{path}: the frame count is unknown; cannot split into chunks (give --end)")
+    if start >= stop:
+        raise InputError(f"{path}: the frame range starts at frame {start}, after the video's last frame ({n} frames)")
     bounds = [(a, min(a + chunk_frames, stop)) for a in range(start, stop, chunk_frames)]
     detector = detector or _detector(model, horizon)
     lag = max(0, detector.config.tracker.min_hits - 1)
@@ -231,6 +240,11 @@ def _run_chunked(task: _Task, client, chunk_frames: int) -> InputResult:
     except VehicleDetectionError as exc:
         return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code)
     except Exception as exc:
+        lost = _cluster_failure(exc, client)
+        if isinstance(exc, CancelledError):
+            raise lost from None  # the scheduler went away: the run stops
+        if lost is not None:
+            return InputResult(task.path, error=_message(task.path, lost), seconds=time.perf_counter() - t, exit_code=lost.exit_code)
         return InputResult(task.path, error=f"{task.path}: internal error: {type(exc).__name__}: {one_line(exc)}",
                            seconds=time.perf_counter() - t, exit_code=1)
     n_frames = _frames_in(task.path, start, end)
@@ -283,6 +297,7 @@ def detect_many(
     client=None,
     chunk_frames: int | None = None,
     on_result=None,
+    scheduler_timeout: float = SCHEDULER_TIMEOUT,
 ) -> list[InputResult]:
     """Detect vehicles in many videos, images and folders of images.
 
@@ -313,11 +328,20 @@ def detect_many(
     on_result : callable, optional
         Called with each :class:`~vehicle_detection.pipeline.inputs.InputResult` as it finishes
         (the CLI prints them).
+    scheduler_timeout : float
+        With ``client`` an address: seconds to wait for the scheduler to answer, when connecting
+        and when it stops answering (:class:`~vehicle_detection.errors.ClusterError` then).
 
     Returns
     -------
     list of InputResult
-        One per input, in input order.
+        One per input, in input order. An input whose dask worker died has ``exit_code`` 8.
+
+    Raises
+    ------
+    ClusterError
+        The scheduler cannot be reached, or went away during the run (the inputs it left
+        unfinished have no output, not even a ``.partial`` file).
 
     Notes
     -----
@@ -328,8 +352,14 @@ def detect_many(
     options = options or InputOptions()
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     _check_batch(options, jobs, chunk_frames, table)
+    if client is not None and jobs > 1:
+        raise UsageError("jobs (--jobs) are local worker processes; with a dask cluster (--scheduler) its workers run the inputs")
+    if client is None and chunk_frames is not None:
+        raise UsageError("chunk_frames (--chunk-frames) splits videos into tasks of a dask cluster; give --scheduler too")
     detector = detector or Detector()
     tasks, results = _tasks(paths, out_dir, options, detector, progress=options.progress and jobs == 1 and client is None)
+    if table is not None:
+        _check_table(Path(table), tasks, options)
     report = on_result or (lambda r: None)
     if skip_existing:
         for k in [k for k, task in tasks.items() if task.complete()]:
@@ -337,7 +367,7 @@ def detect_many(
             results[k] = InputResult(task.path, tuple(task.outputs.files(task.kind, task.images())), skipped=True)
     for k in sorted(results):
         report(results[k])
-    _run(tasks, jobs, client, chunk_frames, results, report)
+    _run(tasks, jobs, client, chunk_frames, results, report, scheduler_timeout)
     ordered = [results[k] for k in range(len(results))]
     if table is not None:
         _write_combined(Path(table), ordered, overwrite=options.overwrite)
@@ -374,20 +404,30 @@ def _tasks(paths, out_dir, options: InputOptions, detector: Detector, *, progres
                 raise UsageError(f"{claimed[key]} and {p} would both write {o}; give them different names or out-dirs")
             claimed[key] = p
         tasks[k] = _Task(p, kind, outputs, options, detector)
+    _refuse_images_into_folder_inputs(tasks)
     return tasks, results
 
 
-def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, results: dict, report) -> None:
+def _refuse_images_into_folder_inputs(tasks: dict[int, _Task]) -> None:
+    """An annotated image may not be written into a folder of images that is an input of the
+    same batch: that input would read it as one of its own images (or a half-written one)."""
+    folders = {Path(os.path.abspath(t.path)): t.path for t in tasks.values() if t.kind == "folder"}
+    for t in tasks.values():
+        out = t.outputs.annotated
+        if t.kind == "image" and out is not None and Path(os.path.abspath(out)).parent in folders:
+            raise OutputError(f"{out}: the annotated image of {t.path} would be written into {folders[Path(os.path.abspath(out)).parent]}, "
+                              "a folder of images of this batch, and read as one of its images; choose another --out-dir")
+
+
+def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, results: dict, report,
+         timeout: float = SCHEDULER_TIMEOUT) -> None:
     own_client = None
     if isinstance(client, str):
-        try:
-            from dask.distributed import Client  # an optional dependency ([distributed])
-        except ImportError:
-            raise UsageError('--scheduler needs dask.distributed: pip install "vehicle-detection[distributed]"') from None
-        client = own_client = Client(client)
+        client = own_client = connect(client, timeout)
     try:
         if client is not None:
-            _run_dask(tasks, client, chunk_frames, results, report)
+            with _quiet_dask(own_client is not None):
+                _run_dask(tasks, client, chunk_frames, results, report)
         elif jobs == 1 or len(tasks) <= 1:
             threads = None
             if jobs > 1:
@@ -400,7 +440,111 @@ def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, r
             _run_pool(tasks, jobs, results, report)
     finally:
         if own_client is not None:
-            own_client.close()
+            with _quiet_dask(True):
+                try:
+                    own_client.close(timeout=timeout)
+                except Exception:  # noqa: BLE001  (a scheduler that went away cannot be told goodbye)
+                    pass
+
+
+# --- a dask cluster ---------------------------------------------------------------------------------
+
+#: ``[SCHEME://]HOST:PORT`` (HOST may be ``[IPv6]``).
+_ADDRESS = re.compile(r"^(?:(?P<scheme>[a-z]+)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+):(?P<port>\d{1,5})$")
+_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+
+
+def scheduler_address(address: str) -> str:
+    """``address`` checked and with its scheme (``HOST:PORT`` -> ``tcp://HOST:PORT``).
+
+    Raises
+    ------
+    UsageError
+        When it is not ``[tcp|tls|ws|wss|ucx://]HOST:PORT`` with a port from 1 to 65535 (or the
+        ``inproc://`` address of a cluster in this process).
+    """
+    if re.match(r"^inproc://\S+$", address):
+        return address  # a cluster in this process (LocalCluster(processes=False))
+    m = _ADDRESS.match(address.strip())
+    scheme = (m and m["scheme"]) or "tcp"
+    if m is None or scheme not in _SCHEMES or not 1 <= int(m["port"]) <= 65535:
+        raise UsageError(f"--scheduler {address!r}: expected a dask scheduler's address, [{'|'.join(_SCHEMES)}://]HOST:PORT "
+                         "with a port from 1 to 65535 (as 'dask scheduler' prints it: tcp://HOST:8786)")
+    return f"{scheme}://{m['host']}:{int(m['port'])}"
+
+
+def connect(address: str, timeout: float = SCHEDULER_TIMEOUT):
+    """A ``dask.distributed.Client`` of the scheduler at ``address``.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://HOST:PORT`` (or ``HOST:PORT``; see :func:`scheduler_address`).
+    timeout : float
+        Seconds to wait for the scheduler to answer (and, later, to come back when it stops
+        answering).
+
+    Raises
+    ------
+    UsageError
+        A malformed address, or a timeout that is not a finite number > 0.
+    MissingDependencyError
+        dask.distributed is not installed.
+    ClusterError
+        No scheduler answers at ``address`` within ``timeout`` seconds.
+    """
+    if not 0 < timeout < float("inf"):
+        raise UsageError(f"--scheduler-timeout {timeout!r}: expected a finite number of seconds > 0")
+    address = scheduler_address(address)
+    distributed = require("distributed", "distributed", "--scheduler")
+    with _quiet_dask(True):
+        try:
+            return distributed.Client(address, timeout=timeout, set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise ClusterError(f"{address}: the dask scheduler cannot be reached (no answer within {timeout:g} s; "
+                               "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)") from exc
+
+
+@contextmanager
+def _quiet_dask(quiet: bool):
+    """dask.distributed's own log lines off (errors are reported once, on one line, by the caller)."""
+    if not quiet:
+        yield
+        return
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+def _address(client) -> str:
+    try:
+        return str(client.scheduler.address)
+    except AttributeError:
+        return "the dask scheduler"
+
+
+def _cluster_failure(exc: BaseException, client) -> ClusterError | None:
+    """The cluster's part in a failed task: a worker that died, or a scheduler that went away; None: neither."""
+    if isinstance(exc, CancelledError):
+        return ClusterError(f"{_address(client)}: the dask scheduler went away during the run (connection lost)")
+    if type(exc).__name__ == "KilledWorker":  # distributed.scheduler.KilledWorker
+        worker = getattr(getattr(exc, "last_worker", None), "address", None) or "a worker"
+        return ClusterError(f"the dask worker running it ({worker}) died; nothing of it was written")
+    return None
+
+
+def _remove_partials(task: _Task) -> None:
+    """Delete the hidden ``.partial`` files of an input whose worker died (it cannot clean up after itself)."""
+    for out in task.outputs.files(task.kind, task.images()):
+        for tmp in out.parent.glob(f".{glob.escape(out.name)}.*{PARTIAL_SUFFIX}"):
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
 
 
 def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None:
@@ -439,22 +583,47 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
 
 
 def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results: dict, report) -> None:
-    from dask.distributed import as_completed  # an optional dependency ([distributed])
-
+    """One task per input on the cluster. A worker that dies fails its input (exit status 8, its
+    partial files removed); a scheduler that goes away stops the run with a :class:`ClusterError`,
+    after removing the partial files of every unfinished input."""
+    as_completed = require("distributed", "distributed", "--scheduler").as_completed
     futures = {}
-    for k, task in tasks.items():
-        if chunk_frames is not None and task.kind == "video":
-            results[k] = _run_chunked(task, client, chunk_frames)
+    try:
+        for k, task in tasks.items():
+            if chunk_frames is not None and task.kind == "video":
+                results[k] = _run_chunked(task, client, chunk_frames)
+                report(results[k])
+            else:
+                futures[client.submit(_run_task, task, pure=False)] = k
+        for fut in as_completed(list(futures), loop=client.loop):
+            k = futures[fut]
+            try:
+                results[k] = fut.result()
+            except Exception as exc:
+                lost = _cluster_failure(exc, client)
+                if lost is None:
+                    results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: task failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
+                elif isinstance(exc, CancelledError):
+                    raise lost from None
+                else:
+                    _remove_partials(tasks[k])
+                    results[k] = InputResult(tasks[k].path, error=_message(tasks[k].path, lost), exit_code=lost.exit_code)
             report(results[k])
-        else:
-            futures[client.submit(_run_task, task, pure=False)] = k
-    for fut in as_completed(list(futures)):
-        k = futures[fut]
-        try:
-            results[k] = fut.result()
-        except Exception as exc:
-            results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: task failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
-        report(results[k])
+    except ClusterError as exc:
+        unfinished = [k for k in tasks if k not in results]
+        for k in unfinished:
+            _remove_partials(tasks[k])
+        raise ClusterError(f"{one_line(exc)}; {len(unfinished)} of {len(tasks)} inputs unfinished, nothing of them written") from None
+
+
+def _check_table(dest: Path, tasks: dict[int, _Task], options: InputOptions) -> None:
+    """Refuse the table of all inputs before any work: an input, an output of an input, a special
+    file, or an existing file without ``overwrite``."""
+    check_output_path(dest, overwrite=options.overwrite, inputs=[t.path for t in tasks.values()] + list(options.inputs))
+    for t in tasks.values():
+        for o in t.outputs.tables.values():
+            if Path(os.path.abspath(o)) == Path(os.path.abspath(dest)):
+                raise OutputError(f"{dest}: the table of all inputs would be the {o.suffix[1:]} table of {t.path}; choose another --table")
 
 
 def _write_combined(dest: Path, results: list[InputResult], *, overwrite: bool) -> None:

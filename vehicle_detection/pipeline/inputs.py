@@ -326,6 +326,7 @@ def run_input(
         outputs = default_outputs(path, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video)
     start, end = options.frames
     images = list_images(path)[start:end] if kind == "folder" else [path] if kind == "image" else []
+    _check_range(path, kind, start, end, images)
     if "coco" in outputs.tables and kind == "video":
         raise InputError(f"{path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
     read = [path, *images, *options.inputs]
@@ -337,6 +338,17 @@ def run_input(
             n_boxes, n_frames, notes = _run_images(path, kind, images, options, detector, outputs, read)
     return InputResult(path, tuple(outputs.files(kind, images)), n_boxes, n_frames=n_frames, seconds=time.perf_counter() - t,
                        notes=tuple(notes))
+
+
+def _check_range(path: Path, kind: str, start: int, end: int | None, images: list[Path]) -> None:
+    """Refuse a frame range that holds no frame of a video or folder (an empty table would look like no cars)."""
+    if kind == "folder" and not images:
+        n = len(list_images(path))
+        raise InputError(f"{path}: the frame range {start} to {'the end' if end is None else end - 1} holds none of its {n} images")
+    if kind == "video" and start > 0:
+        n = probe_video(path).n_frames
+        if n is not None and start >= n:
+            raise InputError(f"{path}: the frame range starts at frame {start}, after the video's last frame ({n} frames)")
 
 
 def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: Outputs, threads: int | None):

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..detections import Detections
 from ..detector import Detector
+from ..io.images import as_rgb_uint8, check_frame_shape
 from ..viz.drawing import draw_detections
 
 __all__ = ["MoviepyAdapter"]
@@ -87,8 +88,13 @@ class MoviepyAdapter:
         return out
 
     def __call__(self, frame) -> np.ndarray:
-        """``clip.image_transform(adapter)``: the next frame, with its vehicles drawn."""
-        frame = np.asarray(frame)
+        """``clip.image_transform(adapter)``: the next frame, with its vehicles drawn.
+
+        The frame is taken as :meth:`~vehicle_detection.detector.Detector.step` takes it (RGB
+        ``uint8``; grey, RGBA and ``uint16`` are converted, and the converted frame is returned);
+        float, signed, empty or misshapen frames raise :class:`~vehicle_detection.errors.InputError`.
+        """
+        frame = _frame(frame, f"frame {self.frames_processed}")
         if self._last_in is not None and frame.shape == self._last_in.shape and np.array_equal(frame, self._last_in):
             return self._last_out  # moviepy's second call on the same frame (frame 0)
         digest = hashlib.blake2b(np.ascontiguousarray(frame).tobytes(), digest_size=16).digest()
@@ -110,6 +116,13 @@ class MoviepyAdapter:
                     f"frame at t={t} s after t={self._last_t} s: frames must come in order (the tracker cannot go back); "
                     "use a new MoviepyAdapter (or reset()) for another pass"
                 )
-        out = self._process(np.asarray(get_frame(t)))
+        out = self._process(_frame(get_frame(t), f"frame at t={t} s"))
         self._last_t = t
         return out
+
+
+def _frame(frame, name: str) -> np.ndarray:
+    """``frame`` as RGB ``uint8`` of a shape the search takes, else InputError naming it."""
+    frame = as_rgb_uint8(frame, name=name)
+    check_frame_shape(frame.shape[0], frame.shape[1], name)
+    return frame
