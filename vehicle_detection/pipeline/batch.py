@@ -28,11 +28,12 @@ import multiprocessing
 import os
 import time
 from collections.abc import Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from joblib.externals.loky import ProcessPoolExecutor
 
 from ..deprecation import old_keywords
 from ..detections import Detections
@@ -406,8 +407,10 @@ def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, r
 def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None:
     threads = max(1, (os.cpu_count() or 1) // jobs)
     tasks = {k: replace(task, threads=threads) for k, task in tasks.items()}
-    ctx = multiprocessing.get_context("spawn")  # no fork of a process with threads (numba, PyAV)
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx, initializer=init_worker, initargs=(threads,))
+    # loky (joblib's) starts fresh interpreters (no fork of a process with threads: numba, PyAV) that,
+    # unlike multiprocessing's "spawn", do not re-run the caller's script: detect_many works in a
+    # plain script without an ``if __name__ == "__main__":`` guard.
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), initializer=init_worker, initargs=(threads,))
     try:
         futures = {pool.submit(_run_task, task): k for k, task in tasks.items()}
         pending = set(futures)
@@ -433,7 +436,7 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
                 proc.terminate()
             for proc in alive:
                 proc.join(0.1)
-        pool.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(wait=True, kill_workers=True)
         raise
     pool.shutdown(wait=True)
 
