@@ -47,3 +47,47 @@ def test_detect_many_with_jobs_in_a_plain_script_without_a_main_guard(tmp_path):
     assert [r[0] for r in rows] == ["test1.jpg", "test3.jpg"]
     assert all(r[2] == "None" and int(r[1]) >= 1 for r in rows), lines  # no error, cars found in both
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["test1_boxes.csv", "test3_boxes.csv"]
+
+
+def test_out_puts_every_output_of_the_run_beside_it(tmp_path, capsys):
+    from vehicle_detection.cli import main
+    from vehicle_detection.io.tables import read_boxes_csv
+
+    video = tmp_path / "in" / "clip.mp4"
+    video.parent.mkdir()
+    shutil.copy(TEST_VIDEO, video)
+    out = tmp_path / "o" / "t.mp4"
+    assert main(["detect", str(video), "--out", str(out), "--format", "csv,mot", "--no-progress"]) == 0
+    assert sorted(p.name for p in video.parent.iterdir()) == ["clip.mp4"]  # nothing beside the input
+    assert sorted(p.name for p in out.parent.iterdir()) == ["clip_boxes.csv", "clip_mot.txt", "t.mp4"]
+    assert len(read_boxes_csv(out.parent / "clip_boxes.csv")) > 0
+    # A folder of images: the annotated folder, its boxes.csv inside, the other tables beside it.
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for name in ("test1.jpg", "test2.jpg"):
+        shutil.copy(TEST_IMAGES / name, shots / name)
+    drawn = tmp_path / "o2" / "drawn"
+    assert main(["detect", str(shots), "--out", str(drawn), "--format", "csv,coco"]) == 0
+    assert sorted(p.name for p in shots.iterdir()) == ["test1.jpg", "test2.jpg"]
+    assert sorted(p.name for p in drawn.parent.iterdir()) == ["drawn", "shots_coco.json"]
+    assert sorted(p.name for p in drawn.iterdir()) == ["boxes.csv", "test1.jpg", "test2.jpg"]
+
+
+def test_the_runner_counts_every_frame_and_image_not_only_those_with_boxes(tmp_path):
+    import vehicle_detection as vd
+    from vehicle_detection.pipeline.inputs import InputOptions, run_input
+
+    frames = sum(1 for _ in vd.read_frames(TEST_VIDEO))
+    r = run_input(TEST_VIDEO, InputOptions(video=False), out_dir=tmp_path / "v")
+    table = vd.read_boxes_csv(r.outputs[0])
+    assert r.n_frames == frames == 38 and r.n_boxes == len(table)
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for name in ("test1.jpg", "test2.jpg", "test3.jpg"):  # test2: an empty road
+        shutil.copy(TEST_IMAGES / name, shots / name)
+    r = run_input(shots, InputOptions(video=False), out_dir=tmp_path / "f")
+    counts = [len(vd.Detector().detect_image(vd.read_image(shots / n))) for n in ("test1.jpg", "test2.jpg", "test3.jpg")]
+    assert r.n_frames == 3 and r.n_boxes == sum(counts) and 0 in counts and 1 in counts
+    for name, n in zip(("test1.jpg", "test2.jpg", "test3.jpg"), counts):
+        assert f"{shots / name}: {n} vehicle{'' if n == 1 else 's'}" in r.notes
+    assert any(note.endswith(": 1 vehicle") for note in r.notes)

@@ -100,10 +100,11 @@ def _detect_one(args, options: InputOptions) -> int:
     kind = input_kind(inp)
     if kind is None:
         raise InputError(unknown_type(inp))
-    outputs = default_outputs(inp, kind, None if args.out_dir is None else Path(args.out_dir), options.formats, video=options.video)
+    outputs = default_outputs(inp, kind, None if args.out_dir is None else Path(args.out_dir), options.formats, video=options.video,
+                              annotated=args.out)
     named = {"csv": args.boxes, "lanes": args.lanes_csv}
     tables = {**outputs.tables, **{fmt: Path(p) for fmt, p in named.items() if p}}
-    outputs = replace(outputs, annotated=Path(args.out) if args.out else outputs.annotated, tables=tables)
+    outputs = replace(outputs, tables=tables)
     detector = load_detector(args.model, args.horizon, args.full_search_every)
     result = run_input(inp, options, detector=detector, outputs=outputs)
     print(_summary(result))

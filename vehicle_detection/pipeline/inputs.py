@@ -232,7 +232,13 @@ def _folder_inputs(folder: Path) -> list[tuple[Path, str, str | None]]:
 
 
 def default_outputs(
-    path: Path, kind: str, out_dir: Path | None = None, formats: Sequence[str] = ("csv",), *, video: bool = True
+    path: Path,
+    kind: str,
+    out_dir: Path | None = None,
+    formats: Sequence[str] = ("csv",),
+    *,
+    video: bool = True,
+    annotated: str | os.PathLike | None = None,
 ) -> Outputs:
     """The outputs of one input under the default names.
 
@@ -240,13 +246,20 @@ def default_outputs(
     ``NAME_detected/`` (None when not ``video``) and the tables ``NAME`` + the suffix of
     :data:`~vehicle_detection.io.formats.FORMATS` (``NAME_boxes.csv``, ...), except the boxes
     CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``).
+
+    ``annotated`` (``--out``) names the annotated output; a run's outputs go together, so the
+    tables then go beside it (unless ``out_dir`` is given), not beside the input.
     """
     if path.name in ("", ".", ".."):
         path = Path(os.path.abspath(path))
+    if annotated is not None:
+        annotated = Path(annotated)
+        if out_dir is None:
+            out_dir = annotated.parent
     base = path.parent if out_dir is None else Path(out_dir)
     stem = path.name if kind == "folder" else path.stem
     suffix = {"video": ".mp4", "image": path.suffix}.get(kind, "")
-    out = base / f"{stem}_detected{suffix}"
+    out = base / f"{stem}_detected{suffix}" if annotated is None else annotated
     tables = {fmt: out / "boxes.csv" if (fmt == "csv" and kind == "folder") else base / f"{stem}{FORMATS[fmt]}" for fmt in formats}
     return Outputs(out if video else None, tables)
 
@@ -379,7 +392,7 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
         if o is not None:
             write_image(o, draw_detections(survey.draw(image, lane), boxes), overwrite=options.overwrite, inputs=read)
         found.append(boxes)
-        notes.append(f"{f}: {len(boxes)} vehicles" + (f" -> {o}" if o is not None else ""))
+        notes.append(f"{f}: {len(boxes)} vehicle{'' if len(boxes) == 1 else 's'}" + (f" -> {o}" if o is not None else ""))
     table = Detections.concatenate(found) if found else Detections.empty()
     if kind == "folder":
         table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})
