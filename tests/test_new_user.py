@@ -91,3 +91,43 @@ def test_the_runner_counts_every_frame_and_image_not_only_those_with_boxes(tmp_p
     for name, n in zip(("test1.jpg", "test2.jpg", "test3.jpg"), counts):
         assert f"{shots / name}: {n} vehicle{'' if n == 1 else 's'}" in r.notes
     assert any(note.endswith(": 1 vehicle") for note in r.notes)
+
+
+SHARED = REPO.parent / "shared" / "data"
+CLIP_A = Path(os.environ.get("VEHICLE_DETECTION_DATA", SHARED)) / "videos" / "project_video_clip_A.mp4"
+
+
+@pytest.mark.skipif(not CLIP_A.is_file(), reason=f"{CLIP_A} not found (clip A of the shared data)")
+def test_horizon_auto_on_a_still_image_estimates_it_from_the_image(tmp_path, capsys):
+    import vehicle_detection as vd
+    from vehicle_detection.cli import main
+    from vehicle_detection.io.images import write_image
+
+    frame = next(iter(vd.read_frames(CLIP_A)))
+    # The frame as another camera would frame it: 120 rows less sky, the horizon higher up.
+    tilted = frame[120:]
+    estimate = vd.estimate_horizon([tilted])
+    plan = vd.Detector().config.plan.reference_horizon
+    assert estimate is not None and estimate < plan - 0.05
+    write_image(tmp_path / "tilted.png", tilted)
+    write_image(tmp_path / "frame.png", frame)
+    write_image(tmp_path / "flat.png", vd.read_image(tmp_path / "tilted.png") * 0 + 128)  # no lines at all
+
+    assert main(["detect", str(tmp_path / "tilted.png"), "--horizon", "auto", "--no-video", "--boxes", str(tmp_path / "t.csv")]) == 0
+    out = capsys.readouterr().out
+    assert f"horizon: {estimate:.3f} of the height, estimated from the image" in out and "bands moved" in out
+    expected = vd.Detector().with_horizon(estimate).detect_image(tilted)
+    found = vd.read_boxes_csv(tmp_path / "t.csv")
+    assert found.xyxy.tolist() == expected.xyxy.tolist() and len(found) > 0
+    assert found.xyxy.tolist() != vd.Detector().detect_image(tilted).xyxy.tolist()  # the plan's bands give other boxes
+
+    assert main(["detect", str(tmp_path / "frame.png"), "--horizon", "auto", "--no-video", "--boxes", str(tmp_path / "f.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "estimated from the image" in out and "bands unchanged" in out  # the project camera's own horizon
+    assert vd.read_boxes_csv(tmp_path / "f.csv").xyxy.tolist() == vd.Detector().detect_image(frame).xyxy.tolist()
+
+    assert main(["detect", str(tmp_path / "flat.png"), "--horizon", "auto", "--no-video", "--boxes", str(tmp_path / "n.csv")]) == 0
+    assert "horizon: no road lines to estimate it from in this image" in capsys.readouterr().out
+    # Without --horizon auto an image is searched where the plan says, as documented, and nothing is said.
+    assert main(["detect", str(tmp_path / "tilted.png"), "--no-video", "--boxes", str(tmp_path / "p.csv")]) == 0
+    assert "horizon:" not in capsys.readouterr().out

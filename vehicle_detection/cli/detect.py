@@ -88,6 +88,7 @@ def _options(args) -> InputOptions:
     return InputOptions(
         frames=_frames(args), road=Road(camera, lanes=lanes), video=not args.no_video, formats=formats,
         encoding=Encoding(args.preset, args.crf), overwrite=args.overwrite, progress=not args.no_progress, inputs=inputs,
+        image_horizon=args.horizon == "auto",
     )
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, OutputError, UsageError
+from ..horizon import TOLERANCE, estimate_horizon
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
 from ..io.video import probe_video
@@ -71,6 +72,12 @@ class InputOptions:
         A progress bar for videos (on a terminal).
     inputs : tuple of Path
         Other files the run reads (a model file, a camera file): no output may be one of them.
+    image_horizon : bool
+        Images (``--horizon auto``): move the search bands to the horizon estimated from each
+        image's own road lines (:func:`~vehicle_detection.horizon.estimate_horizon` with one
+        frame), when the detector estimates horizons; an image without usable lines is searched
+        where the plan says, and a note says so. False: images are searched where the plan says
+        (a video's horizon is estimated from its first frames in any case).
     """
 
     frames: tuple[int, int | None] | range | None = None
@@ -81,6 +88,7 @@ class InputOptions:
     overwrite: bool = False
     progress: bool = False
     inputs: tuple[Path, ...] = ()
+    image_horizon: bool = False
 
     def __post_init__(self) -> None:
         formats = tuple(dict.fromkeys(self.formats)) or ("csv",)
@@ -385,7 +393,11 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
         options.road.check(image.shape[1], image.shape[0], str(f))
         image = survey.undistort(image)
         sizes.append(image.shape[:2])
-        boxes = survey.measure(detector.detect_image(image).replace(frame=i))
+        searcher = detector
+        if options.image_horizon and detector.estimates_horizon:
+            searcher, note = _image_horizon(detector, image, f)
+            notes.append(note)
+        boxes = survey.measure(searcher.detect_image(image).replace(frame=i))
         lane = survey.find_lane(image)
         survey.record(i, lane)
         lanes += survey.lane_rows
@@ -399,3 +411,16 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
     write_tables(outputs.tables, table, name=path.name, images=[(f.name, s) for f, s in zip(images, sizes)], first=first,
                  lanes=lanes, overwrite=options.overwrite, inputs=read)
     return len(table), len(images), notes
+
+
+def _image_horizon(detector: Detector, image, name: Path) -> tuple[Detector, str]:
+    """The detector for one image at the horizon of its own road lines, and a note saying what was done."""
+    reference = detector.config.plan.reference_horizon
+    estimate = estimate_horizon([image], min_frames=1)
+    if estimate is None:
+        return detector, (f"{name}: horizon: no road lines to estimate it from in this image; searched where the plan "
+                          f"says ({reference:.3f} of the height)")
+    if abs(estimate - reference) <= TOLERANCE:
+        return detector, f"{name}: horizon: {estimate:.3f} of the height, estimated from the image (the plan's {reference:.3f}: bands unchanged)"
+    return detector.with_horizon(estimate), (f"{name}: horizon: {estimate:.3f} of the height, estimated from the image (the plan's "
+                                             f"{reference:.3f}); search bands moved accordingly")
