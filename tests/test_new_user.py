@@ -131,3 +131,46 @@ def test_horizon_auto_on_a_still_image_estimates_it_from_the_image(tmp_path, cap
     # Without --horizon auto an image is searched where the plan says, as documented, and nothing is said.
     assert main(["detect", str(tmp_path / "tilted.png"), "--no-video", "--boxes", str(tmp_path / "p.csv")]) == 0
     assert "horizon:" not in capsys.readouterr().out
+
+
+def test_coco_in_a_mixed_batch_is_written_for_the_images_and_a_glob_of_images_is_one_dataset(tmp_path, capsys):
+    import json
+
+    import vehicle_detection as vd
+    from vehicle_detection.cli import main
+
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    shutil.copy(TEST_VIDEO, mixed / "clip.mp4")
+    for name in ("test1.jpg", "test3.jpg"):
+        shutil.copy(TEST_IMAGES / name, mixed / name)
+    out = tmp_path / "out"
+    argv = ["detect", str(mixed), "--format", "csv,mot,coco", "--no-video", "--out-dir", str(out), "--no-progress"]
+    assert main(argv) == 0  # the video no longer fails for want of COCO
+    err = capsys.readouterr().err
+    assert err.count("COCO JSON is written for images only") == 1
+    assert sorted(p.name for p in out.iterdir()) == ["clip_boxes.csv", "clip_mot.txt", "mixed_coco.json", "mixed_detected",
+                                                     "mixed_mot.txt"]
+    assert len(json.loads((out / "mixed_coco.json").read_text())["images"]) == 2
+
+    # A glob of images (a batch of single images): one COCO dataset, not one file each.
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for name in ("test1.jpg", "test2.jpg", "test3.jpg"):
+        shutil.copy(TEST_IMAGES / name, shots / name)
+    out2 = tmp_path / "out2"
+    assert main(["detect", str(shots / "test*.jpg"), "--format", "coco", "--no-video", "--out-dir", str(out2)]) == 0
+    assert sorted(p.name for p in out2.iterdir()) == ["images_coco.json"]
+    doc = json.loads((out2 / "images_coco.json").read_text())
+    assert [im["file_name"] for im in doc["images"]] == [f"../shots/test{i}.jpg" for i in (1, 2, 3)]
+    assert [im["id"] for im in doc["images"]] == [1, 2, 3] and {(im["width"], im["height"]) for im in doc["images"]} == {(1280, 720)}
+    detector = vd.Detector()
+    for im in doc["images"]:
+        expected = detector.detect_image(shots / Path(im["file_name"]).name)
+        got = [a["bbox"] for a in doc["annotations"] if a["image_id"] == im["id"]]
+        assert got == [[x1, y1, x2 - x1, y2 - y1] for x1, y1, x2, y2 in expected.xyxy.tolist()]
+    assert len(doc["annotations"]) > 0
+    # Again with --skip-existing: the dataset is complete, nothing is rewritten.
+    before = (out2 / "images_coco.json").stat().st_mtime_ns
+    assert main(["detect", str(shots / "test*.jpg"), "--format", "coco", "--no-video", "--out-dir", str(out2), "--skip-existing"]) == 0
+    assert (out2 / "images_coco.json").stat().st_mtime_ns == before

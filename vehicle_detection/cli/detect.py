@@ -18,7 +18,9 @@ from pathlib import Path
 from ..errors import InputError, UsageError
 from ..io import Encoding
 from ..pipeline.batch import detect_many
-from ..pipeline.inputs import VIDEO_EXTENSIONS, InputOptions, InputResult, default_outputs, input_kind, run_input, unknown_type
+from ..pipeline.inputs import (
+    VIDEO_EXTENSIONS, InputOptions, InputResult, default_outputs, expand_inputs, input_kind, run_input, unknown_type,
+)
 from ..road.survey import Road
 from .options import load_camera, load_detector
 
@@ -122,6 +124,8 @@ def _summary(r: InputResult) -> str:
 
 def _detect_many(args, options: InputOptions) -> int:
     t = time.perf_counter()
+    if "coco" in options.formats and any(kind == "video" for _, kind, _ in expand_inputs(args.inputs)):
+        print("coco: COCO JSON is written for images only; the videos get the other formats", file=sys.stderr)
 
     def report(r: InputResult) -> None:
         if r.error is not None:

@@ -154,6 +154,10 @@ class InputResult:
     notes : tuple of str
         What else the run found out, one line each: the footage's black bars and overlays and
         its horizon (videos), each image's count (images).
+    image : tuple or None
+        An image input: ``(size, boxes)``, its ``(H, W)`` as searched and its boxes, for the one
+        COCO dataset of a batch's images (:func:`~vehicle_detection.pipeline.batch.detect_many`);
+        None for videos and folders.
     """
 
     path: Path
@@ -165,6 +169,7 @@ class InputResult:
     seconds: float = 0.0
     exit_code: int = 0
     notes: tuple[str, ...] = ()
+    image: tuple | None = None
 
     @property
     def ok(self) -> bool:
@@ -354,10 +359,11 @@ def run_input(
     with output_batch():
         if kind == "video":
             n_boxes, n_frames, notes = _run_video(path, options, detector, outputs, threads)
+            image = None
         else:
-            n_boxes, n_frames, notes = _run_images(path, kind, images, options, detector, outputs, read)
+            n_boxes, n_frames, notes, image = _run_images(path, kind, images, options, detector, outputs, read)
     return InputResult(path, tuple(outputs.files(kind, images)), n_boxes, n_frames=n_frames, seconds=time.perf_counter() - t,
-                       notes=tuple(notes))
+                       notes=tuple(notes), image=image if kind == "image" else None)
 
 
 def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: Outputs, threads: int | None):
@@ -410,7 +416,7 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
         table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})
     write_tables(outputs.tables, table, name=path.name, images=[(f.name, s) for f, s in zip(images, sizes)], first=first,
                  lanes=lanes, overwrite=options.overwrite, inputs=read)
-    return len(table), len(images), notes
+    return len(table), len(images), notes, ((sizes[0], table) if len(images) == 1 else None)
 
 
 def _image_horizon(detector: Detector, image, name: Path) -> tuple[Detector, str]:
