@@ -23,9 +23,11 @@ from a module that imports nothing heavy) before numba is loaded in it.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, wait
@@ -461,8 +463,10 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
     # unlike multiprocessing's "spawn", do not re-run the caller's script: detect_many works in a
     # plain script without an ``if __name__ == "__main__":`` guard.
     pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), initializer=init_worker, initargs=(threads,))
+    futures: dict = {}
     try:
-        futures = {pool.submit(_run_task, task): k for k, task in tasks.items()}
+        for k, task in tasks.items():
+            futures[pool.submit(_run_task, task)] = k
         pending = set(futures)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -474,19 +478,24 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
                     results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: worker failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
                 report(results[k])
     except BaseException:
-        # Ctrl-C, SIGTERM: stop the workers the same way (each cleans up its partial outputs), then wait for them.
-        # Repeated until every worker has exited: a worker may have taken the next queued input
+        # Ctrl-C, SIGTERM: interrupt the running tasks the same way (each cleans up its partial outputs
+        # and returns), and start no other. A worker ignores SIGTERM between tasks (init_worker), so it
+        # is never killed mid-clean-up, neither by this signal nor by loky, which kills every worker
+        # when one dies. Repeated until every task is done: a worker may have taken a queued input
         # after cleaning up the first (a second SIGTERM during a clean-up is ignored).
+        for fut in futures:
+            fut.cancel()
         procs = list(getattr(pool, "_processes", {}).values())
         for _ in range(600):
-            alive = [p for p in procs if p.is_alive()]
-            if not alive:
+            running = [fut for fut in futures if not fut.done()]
+            if not running:
                 break
-            for proc in alive:
-                proc.terminate()
-            for proc in alive:
-                proc.join(0.1)
-        pool.shutdown(wait=True, kill_workers=True)
+            for proc in procs:
+                if proc.is_alive():
+                    with contextlib.suppress(OSError):
+                        os.kill(proc.pid, signal.SIGTERM)
+            wait(running, timeout=0.1)
+        pool.shutdown(wait=True, kill_workers=any(not fut.done() for fut in futures))
         raise
     pool.shutdown(wait=True)
 
