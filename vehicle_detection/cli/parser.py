@@ -279,6 +279,6 @@ def _add_mine_negatives(sub) -> None:
                    help="drop a window with this IoU with a kept one of the same scale (default %(default)s)")
     p.add_argument("--dedupe-frames", type=int, default=5, help="... kept in its frame or this many frames before (default %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT/non-vehicles/NAME/ folder")
-    p.add_argument("--json", action="store_true", help="print the counts as one JSON object on the last line")
+    p.add_argument("--json", action="store_true", help="print the counts as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
