@@ -129,9 +129,22 @@ def test_cli_calibrate_synthetic(tmp_path, capsys):
         write_image(folder / f"c{i}.png", im)
     out = tmp_path / "camera.json"
     assert main(["calibrate", str(folder), "--out", str(out), "--json"]) == 0
-    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert report["images_used"] == 5 and report["rms"] < 0.5
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)  # stdout: the JSON object alone
+    assert report["images_used"] == 5 and report["rms"] < 0.5 and report["out"] == str(out)
+    assert "RMS reprojection error" in captured.err and f"camera saved to {out}" in captured.err
     assert Camera.load(out).image_size == SIZE
+
+
+def test_cli_calibrate_writes_camera_json_by_default(tmp_path, capsys, monkeypatch):
+    folder = tmp_path / "cal"
+    for i, im in enumerate(render_chessboards(5)):
+        write_image(folder / f"c{i}.png", im)
+    monkeypatch.chdir(tmp_path)
+    assert main(["calibrate", str(folder)]) == 0
+    assert Camera.load(tmp_path / "camera.json").image_size == SIZE
+    assert "camera saved to camera.json" in capsys.readouterr().out
+    assert main(["calibrate", str(folder)]) == 5  # never replaced without --overwrite
 
 
 def test_cli_calibrate_without_chessboard(tmp_path, capsys):

@@ -63,8 +63,8 @@ def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
 
 
 def last_json(stdout: str) -> dict:
-    lines = stdout.strip().splitlines()
-    doc = json.loads(lines[-1])
+    """With ``--json``, stdout is one JSON object and nothing else (the human lines go to stderr)."""
+    doc = json.loads(stdout)
     assert isinstance(doc, dict)
     return doc
 
@@ -481,8 +481,12 @@ def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"video": clip.name, "frames": {str(f): {"cars": c} for f, c in cars.items()}}))
     assert main(["evaluate", "--video", str(clip), "--labels", str(labels), "--json", "--no-progress"]) == 0
-    scores = last_json(capsys.readouterr().out)
+    doc = last_json(capsys.readouterr().out)
+    assert set(doc) == {"files", "cameras", "all"}
+    scores = doc["all"]["at_iou_0.5"]
     assert {"precision", "recall", "f1", "fp_per_frame"} <= set(scores)
+    assert doc["files"][str(labels)]["at_iou_0.5"] == scores  # one file: the same figures, the same keys
+    assert set(doc["all"]) >= {"n_frames", "n_cars", "at_iou_0.5", "at_iou_0.7"}
     n_found = len(cars[0]) - 1 + len(cars[5])
     # The same decoded frames give the same boxes: every detection matches, one car is missed.
     assert (scores["tp"], scores["fp"], scores["fn"], scores["n_frames"]) == (n_found, 0, 1, 2)
@@ -529,8 +533,9 @@ def test_evaluate_report_writes_the_sheet_and_the_tables(scored_case, tmp_path, 
     labels, boxes = scored_case
     report = tmp_path / "rep"
     assert main(_report_args(labels, boxes, report, "--json")) == 0
-    out = capsys.readouterr().out
-    assert f"report: {report / 'failures_dash.png'} (3 tiles, 0 left out)" in out
+    captured = capsys.readouterr()
+    out = captured.out
+    assert f"report: {report / 'failures_dash.png'} (3 tiles, 0 left out)" in captured.err
     assert sorted(p.name for p in report.iterdir()) == ["cameras.csv", "cameras.md", "failures_dash.png"]
     sheet = np.array(Image.open(report / "failures_dash.png").convert("RGB"))
     # 3 tiles of 256 x (192 + 38) px in one row, 4 px apart, under a 62 px header.
@@ -552,9 +557,10 @@ def test_evaluate_report_writes_the_sheet_and_the_tables(scored_case, tmp_path, 
     doc = last_json(out)
     assert list(doc["cameras"]) == ["dash"]
     cam = doc["cameras"]["dash"]
-    assert (cam["tp"], cam["fp"], cam["fn"], cam["n_cars"], cam["labels"]) == (1, 2, 1, 2, [str(labels)])
-    assert cam["at_iou_0.7"]["tp"] == 1 and cam["mean_iou"] == 1.0
-    assert {k: v for k, v in cam.items() if k not in ("n_cars", "labels")} == {k: v for k, v in doc.items() if k not in ("files", "cameras")}
+    at50 = cam["at_iou_0.5"]
+    assert (at50["tp"], at50["fp"], at50["fn"], cam["n_cars"], cam["labels"]) == (1, 2, 1, 2, [str(labels)])
+    assert cam["at_iou_0.7"]["tp"] == 1 and at50["mean_iou"] == 1.0
+    assert {k: v for k, v in cam.items() if k != "labels"} == doc["all"]
     assert doc["files"][str(labels)]["camera"] == "dash"
 
 
@@ -562,9 +568,9 @@ def test_evaluate_report_writes_the_sheet_and_the_tables(scored_case, tmp_path, 
 def test_evaluate_report_prints_the_same_figures(scored_case, tmp_path, capsys):
     labels, boxes = scored_case
     assert main(["evaluate", "--labels", str(labels), "--boxes", str(boxes), "--json"]) == 0
-    plain = capsys.readouterr().out.splitlines()
+    plain = capsys.readouterr().err.splitlines()
     assert main(_report_args(labels, boxes, tmp_path / "rep", "--json")) == 0
-    with_report = capsys.readouterr().out.splitlines()
+    with_report = capsys.readouterr().err.splitlines()
 
     def figures(lines):
         return [line for line in lines if not line.startswith(("scored in", "report: "))]
@@ -606,12 +612,13 @@ def test_evaluate_pools_files_of_one_camera(tmp_path, capsys):
         paths.append(tmp_path / name)
         paths[-1].write_text(json.dumps(doc | ({"camera": camera} if camera else {})))
     assert main(["evaluate", "--labels", *map(str, paths), "--json", "--no-progress"]) == 0
-    out = capsys.readouterr().out
-    doc = last_json(out)
+    captured = capsys.readouterr()
+    doc, out = last_json(captured.out), captured.err
     assert list(doc["cameras"]) == ["front", "1280x720"]  # c.json: named by its image size
     front, other = doc["cameras"]["front"], doc["cameras"]["1280x720"]
     assert front["labels"] == [str(paths[0]), str(paths[1])] and other["labels"] == [str(paths[2])]
     assert front["n_frames"] == 2 and other["n_frames"] == 1
-    assert front["tp"] == 2 * other["tp"] and front["fp"] == 2 * other["fp"]  # the same image twice
+    assert front["at_iou_0.5"]["tp"] == 2 * other["at_iou_0.5"]["tp"]  # the same image twice
+    assert front["at_iou_0.5"]["fp"] == 2 * other["at_iou_0.5"]["fp"]
     assert "camera front: 2 frames, 2 cars" in out and "camera 1280x720: 1 frames, 1 cars" in out
     assert out.index("camera front:") < out.index("all: 3 frames, 3 cars")

@@ -1260,7 +1260,7 @@ def test_extra_negatives_through_a_symlinked_file_are_accepted(tmp_path, capsys)
     data = make_data(tmp_path / "data", 12, groups=6)
     neg = _negatives(tmp_path / "neg")
     (neg / "linked.png").symlink_to(_negatives(tmp_path / "elsewhere", 1) / "n0.png")
-    code, _, err = run_main(capsys, "train", "--data-dir", data, "--extra-negatives", neg, "--model", tmp_path / "model.npz", "--json")
+    code, _, err = run_main(capsys, "train", "--data-dir", data, "--extra-negatives", neg, "--model", tmp_path / "model.npz")
     assert (code, err) == (0, [])
     from vehicle_detection.classifier import VehicleClassifier
 

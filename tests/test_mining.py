@@ -296,7 +296,7 @@ def test_cli_mine_negatives_writes_and_refuses_to_overwrite(tmp_path, capsys):
     out = tmp_path / "out"
     argv = ["mine-negatives", "--labels", str(labels), "--out", str(out), "--name", "HN", "--no-progress", "--json"]
     assert main(argv) == 0
-    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    report = json.loads(capsys.readouterr().out)  # stdout: the JSON object alone
     folder_out = out / "non-vehicles" / "HN"
     files = sorted(folder_out.iterdir())
     assert report["mined"] == len(files) > 0 and report["folder"] == str(folder_out)
@@ -325,9 +325,9 @@ def test_cli_train_with_extra_negatives(tmp_path, capsys):
     model = tmp_path / "m.npz"
     argv = ["train", "--data-dir", str(data), "--extra-negatives", str(extra), "--model", str(model), "--json"]
     assert main(argv) == 0
-    out = capsys.readouterr().out
-    assert "images: 220 (" in out and "non-vehicles/HardNegatives 20" in out
-    assert json.loads(out.strip().splitlines()[-1])["n_images"] == 220
+    captured = capsys.readouterr()
+    assert "images: 220 (" in captured.err and "non-vehicles/HardNegatives 20" in captured.err
+    assert json.loads(captured.out)["n_images"] == 220
     assert VehicleClassifier.load(model).metrics["extra_negatives"] == {"non-vehicles/HardNegatives": 20}
 
 

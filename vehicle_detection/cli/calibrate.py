@@ -11,6 +11,7 @@ from ..io import check_output_path
 from ..io.images import list_images, read_image
 from ..road.camera import calibrate
 from ..road.lanes import birds_eye_from_straight
+from .options import human_print
 
 __all__ = ["run"]
 
@@ -30,6 +31,7 @@ def run(args) -> int:
     if args.out is not None:
         check_output_path(args.out, overwrite=args.overwrite, inputs=[*photos, *straight])
     t = time.perf_counter()
+    say = human_print(args)
     camera = calibrate(folder, (cols, rows))
     if straight:
         frames = [read_image(p) for p in straight]
@@ -37,22 +39,22 @@ def run(args) -> int:
             camera.check_size(f.shape[1], f.shape[0], str(p))
         camera = camera.replace(birds_eye=birds_eye_from_straight(frames, camera))
     w, h = camera.image_size
-    print(f"{folder}: {len(camera.images_used)} of {len(photos)} photos used ({w}x{h}), RMS reprojection error {camera.rms:.3f} px")
+    say(f"{folder}: {len(camera.images_used)} of {len(photos)} photos used ({w}x{h}), RMS reprojection error {camera.rms:.3f} px")
     for name in camera.images_cropped:
-        print(f"  {name}: cropped to {w}x{h} (right and bottom edges)")
+        say(f"  {name}: cropped to {w}x{h} (right and bottom edges)")
     for name, why in camera.images_skipped.items():
-        print(f"  {name}: skipped: {why}")
+        say(f"  {name}: skipped: {why}")
     worst = max(camera.per_image_rms.items(), key=lambda kv: kv[1])
-    print(f"  largest per-photo RMS: {worst[0]} {worst[1]:.2f} px")
+    say(f"  largest per-photo RMS: {worst[0]} {worst[1]:.2f} px")
     if camera.birds_eye is not None:
         be = camera.birds_eye
-        print(f"bird's-eye view from {len(straight)} straight-road frame(s): {be.xm_per_px * 100:.2f} cm per pixel across, "
+        say(f"bird's-eye view from {len(straight)} straight-road frame(s): {be.xm_per_px * 100:.2f} cm per pixel across, "
               f"{be.ym_per_px * 100:.2f} cm per pixel along the road")
     if args.out is not None:
         camera.save(args.out, overwrite=args.overwrite, inputs=[*photos, *straight])
-        print(f"camera saved to {args.out} ({time.perf_counter() - t:.1f} s)")
+        say(f"camera saved to {args.out} ({time.perf_counter() - t:.1f} s)")
     else:
-        print("camera not saved (pass --out camera.json to save it)")
+        say("camera not saved (pass --out camera.json to save it)")
     if args.json:
         report = {
             "rms": camera.rms,

@@ -18,7 +18,9 @@ from pathlib import Path
 from ..errors import InputError, UsageError
 from ..io import Encoding
 from ..pipeline.batch import SCHEDULER_TIMEOUT, detect_many
-from ..pipeline.inputs import VIDEO_EXTENSIONS, InputOptions, InputResult, default_outputs, input_kind, run_input, unknown_type
+from ..pipeline.inputs import (
+    VIDEO_EXTENSIONS, InputOptions, InputResult, default_outputs, expand_inputs, input_kind, run_input, unknown_type,
+)
 from ..road.survey import Road
 from .options import load_camera, load_detector
 
@@ -90,6 +92,7 @@ def _options(args) -> InputOptions:
     return InputOptions(
         frames=_frames(args), road=Road(camera, lanes=lanes), video=not args.no_video, formats=formats,
         encoding=Encoding(args.preset, args.crf), overwrite=args.overwrite, progress=not args.no_progress, inputs=inputs,
+        image_horizon=args.horizon == "auto",
     )
 
 
@@ -102,10 +105,11 @@ def _detect_one(args, options: InputOptions) -> int:
     kind = input_kind(inp)
     if kind is None:
         raise InputError(unknown_type(inp))
-    outputs = default_outputs(inp, kind, None if args.out_dir is None else Path(args.out_dir), options.formats, video=options.video)
+    outputs = default_outputs(inp, kind, None if args.out_dir is None else Path(args.out_dir), options.formats, video=options.video,
+                              annotated=args.out)
     named = {"csv": args.boxes, "lanes": args.lanes_csv}
     tables = {**outputs.tables, **{fmt: Path(p) for fmt, p in named.items() if p}}
-    outputs = replace(outputs, annotated=Path(args.out) if args.out else outputs.annotated, tables=tables)
+    outputs = replace(outputs, tables=tables)
     detector = load_detector(args.model, args.horizon, args.full_search_every)
     result = run_input(inp, options, detector=detector, outputs=outputs)
     print(_summary(result))
@@ -122,6 +126,8 @@ def _summary(r: InputResult) -> str:
 
 def _detect_many(args, options: InputOptions) -> int:
     t = time.perf_counter()
+    if "coco" in options.formats and any(kind == "video" for _, kind, _ in expand_inputs(args.inputs)):
+        print("coco: COCO JSON is written for images only; the videos get the other formats", file=sys.stderr)
 
     def report(r: InputResult) -> None:
         if r.error is not None:

@@ -11,26 +11,26 @@ from ..io.tables import read_boxes_csv
 from ..metrics.detection import evaluation_report, load_annotations, pool_by_camera, pool_reports
 from ..metrics.reporting import ReportSource, check_report_dir, labels_camera, write_evaluation_report
 from ..metrics.runner import evaluate_labelled
-from .options import load_camera, load_detector
+from .options import human_print, load_camera, load_detector
 
 __all__ = ["run"]
 
 
-def _print_report(name: str, r: dict) -> None:
-    print(f"{name}: {r['n_frames']} frames, {r['n_cars']} cars")
+def _print_report(name: str, r: dict, say=print) -> None:
+    say(f"{name}: {r['n_frames']} frames, {r['n_cars']} cars")
     for key in ("at_iou_0.5", "at_iou_0.7"):
         s = r[key]
-        print(
+        say(
             f"  IoU >= {key[-3:]}: precision {s['precision']:.3f}  recall {s['recall']:.3f}  F1 {s['f1']:.3f}  "
             f"mean IoU {s['mean_iou']:.3f}  (tp {s['tp']}, fp {s['fp']}, fn {s['fn']}, ignored {s['ignored']})"
         )
     extra = f"  AP50 {r['ap50']:.3f}" if "ap50" in r else " "
     if "fp_per_minute" in r:
         extra += f"  false positives per minute {r['fp_per_minute']:.1f}"
-    print(extra)
+    say(extra)
     if "tracking" in r:
         t = r["tracking"]
-        print(f"  tracking: MOTA {t['mota']:.3f}  IDF1 {t['idf1']:.3f}  HOTA {t['hota']:.3f}  (DetA {t['deta']:.3f}, AssA {t['assa']:.3f}, id switches {t['id_switches']})")
+        say(f"  tracking: MOTA {t['mota']:.3f}  IDF1 {t['idf1']:.3f}  HOTA {t['hota']:.3f}  (DetA {t['deta']:.3f}, AssA {t['assa']:.3f}, id switches {t['id_switches']})")
 
 
 def _evaluate_sources(args, all_labels) -> dict[str, Path | None]:
@@ -45,11 +45,6 @@ def _evaluate_sources(args, all_labels) -> dict[str, Path | None]:
         if args.report and not source.exists():
             raise InputError(f"{labels.path}: {source} not found; --report reads the labelled frames from it")
     return sources
-
-
-def _json_scores(pooled: dict) -> dict:
-    """Pooled scores as the top level of ``evaluate --json`` lays them out: IoU 0.5 flat, 0.7 nested."""
-    return {**pooled["at_iou_0.5"], "iou_threshold": 0.5, "at_iou_0.7": pooled["at_iou_0.7"]}
 
 
 def run(args) -> int:
@@ -68,6 +63,7 @@ def run(args) -> int:
         check_report_dir(args.report, overwrite=args.overwrite)
     detector = None if args.boxes else load_detector(args.model, args.horizon)
     camera = load_camera(args.camera)
+    say = human_print(args)
     t = time.perf_counter()
     reports, items = {}, []
     for labels in all_labels:
@@ -77,39 +73,44 @@ def run(args) -> int:
             reports[name] = evaluation_report(found, labels)
         else:
             reports[name], found = evaluate_labelled(labels, detector, source=source, camera=camera, progress=not args.no_progress)
-        _print_report(name, reports[name])
+        _print_report(name, reports[name], say)
         items.append(ReportSource(labels, found, source, labels_camera(labels, source)))
     cameras = {str(it.annotations.path): it.camera for it in items}
     by_camera = pool_by_camera(reports, cameras)
     pooled = pool_reports(reports.values())
-    _print_pooled(by_camera, pooled, len(reports))
-    print(f"scored in {time.perf_counter() - t:.1f} s")
+    _print_pooled(by_camera, pooled, len(reports), say)
+    say(f"scored in {time.perf_counter() - t:.1f} s")
     if args.report:
-        _write_evaluate_report(args, items, by_camera, pooled, sources)
+        _write_evaluate_report(args, items, by_camera, pooled, sources, say)
     if args.json:
         print(json.dumps(_evaluate_json(reports, cameras, by_camera, pooled)))
     return 0
 
 
-def _print_pooled(by_camera: dict, pooled: dict, n_files: int) -> None:
+def _print_pooled(by_camera: dict, pooled: dict, n_files: int, say=print) -> None:
     """A block per camera (when a camera has several files, or there are several cameras), then "all"."""
     if len(by_camera) > 1 or n_files > len(by_camera):
         for cam, p in by_camera.items():
-            _print_report(f"camera {cam}", {k: v for k, v in p.items() if k != "labels"})
+            _print_report(f"camera {cam}", {k: v for k, v in p.items() if k != "labels"}, say)
     if n_files > 1:
-        _print_report("all", pooled)
+        _print_report("all", pooled, say)
 
 
-def _write_evaluate_report(args, items, by_camera: dict, pooled: dict, sources: dict) -> None:
+def _write_evaluate_report(args, items, by_camera: dict, pooled: dict, sources: dict, say=print) -> None:
     inputs = [*args.labels, *(s for s in sources.values() if s is not None), *filter(None, [args.boxes, args.model, args.camera])]
     written = write_evaluation_report(args.report, items, by_camera, pooled, overwrite=args.overwrite, inputs=inputs)
     for file, counts in written.items():
         extra = f" ({counts['shown']} tiles, {counts['left_out']} left out)" if counts else ""
-        print(f"report: {Path(args.report) / file}{extra}")
+        say(f"report: {Path(args.report) / file}{extra}")
 
 
 def _evaluate_json(reports: dict, cameras: dict, by_camera: dict, pooled: dict) -> dict:
-    """``evaluate --json``: the pooled scores, ``files`` (each with its ``camera``) and ``cameras``."""
+    """``evaluate --json``: one schema at every level.
+
+    ``{"files": {labels: S + camera}, "cameras": {camera: S + labels}, "all": S}``, where each
+    ``S`` holds ``n_frames``, ``n_cars``, ``at_iou_0.5`` and ``at_iou_0.7`` (``precision``,
+    ``recall``, ``f1``, ``mean_iou``, ``tp``, ``fp``, ``fn``, ...) and, where they apply,
+    ``ap50``, ``fp_per_minute`` and ``tracking``.
+    """
     files = {name: {**r, "camera": cameras[name]} for name, r in reports.items()}
-    per_camera = {cam: {**_json_scores(p), "n_cars": p["n_cars"], "labels": p["labels"]} for cam, p in by_camera.items()}
-    return {**_json_scores(pooled), "files": files, "cameras": per_camera}
+    return {"files": files, "cameras": dict(by_camera), "all": dict(pooled)}

@@ -13,7 +13,7 @@ from ..errors import InputError, OutputError, UsageError
 from ..io import refuse_inputs
 from ..metrics.detection import load_annotations
 from ..training.mining import MiningOptions, MiningSource, mine_negatives, write_negatives
-from .options import load_detector
+from .options import human_print, load_detector
 
 __all__ = ["run"]
 
@@ -98,17 +98,18 @@ def run(args) -> int:
         max_iou=args.max_iou, max_car_cover=args.max_car_cover, dedupe_iou=args.dedupe_iou, dedupe_frames=args.dedupe_frames,
     )
     mined = mine_negatives(sources, detector, options, progress=None if args.no_progress else progress)
+    say = human_print(args)
     for name, st in mined.stats.items():
-        print(
+        say(
             f"{name}: {st['frames']} frames searched ({st['skipped_frames']} skipped: no labels within --max-gap), "
             f"{st['hot']} hot windows, {st['far']} away from vehicles, {st['duplicates']} near duplicates dropped, {st['kept']} kept"
         )
     if len(mined):
         out = write_negatives(mined, args.out, args.name, overwrite=args.overwrite, inputs=inputs)
-        print(f"mined {len(mined)} negatives -> {out} ({time.perf_counter() - t:.1f} s)")
+        say(f"mined {len(mined)} negatives -> {out} ({time.perf_counter() - t:.1f} s)")
     else:
         out = None
-        print(f"mined 0 negatives; nothing written ({time.perf_counter() - t:.1f} s)")
+        say(f"mined 0 negatives; nothing written ({time.perf_counter() - t:.1f} s)")
     if args.json:
         print(json.dumps({"mined": len(mined), "folder": None if out is None else str(out), "inputs": mined.stats}))
     return 0

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+import sys
 
 from ..detector import Detector
 from ..errors import UsageError
 from ..features import FeatureConfig
 from ..road.camera import Camera
 
-__all__ = ["feature_config", "load_detector", "load_camera", "csv_ints"]
+__all__ = ["feature_config", "load_detector", "load_camera", "csv_ints", "human_print"]
 
 
 def feature_config(args) -> FeatureConfig:
@@ -51,3 +53,8 @@ def csv_ints(text: str, what: str) -> list[int]:
         return [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise UsageError(f"--{what}: expected comma-separated integers, got {text!r}") from None
+
+
+def human_print(args):
+    """``print`` for a command's human lines: to stderr with ``--json`` (stdout then holds the JSON object alone)."""
+    return functools.partial(print, file=sys.stderr) if getattr(args, "json", False) else print

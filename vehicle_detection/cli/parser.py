@@ -115,7 +115,7 @@ def _add_train(sub) -> None:
                    help="hand-labelled frames of your own cameras (the evaluate format): their cars are added as vehicle "
                    "patches, and the box refinement is learned from them. Never pass frames you score later")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON object on the last line")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")
     _add_feature_options(p)
     _add_common(p)
@@ -149,11 +149,13 @@ def _add_calibrate(sub) -> None:
         "straight road (undistorted first).",
     )
     p.add_argument("dir", metavar="DIR", help="folder of chessboard photos")
-    p.add_argument("--out", default=None, help="camera file to write (JSON); omitted: report only")
+    p.add_argument("--out", default="camera.json",
+                   help="camera file to write (JSON; default %(default)s in the current folder, refused if it exists "
+                   "without --overwrite)")
     p.add_argument("--pattern", default="9x6", help="inner corners per row x per column (default %(default)s)")
     p.add_argument("--straight", nargs="+", default=[], metavar="IMG",
                    help="frames of a straight road with both lane lines, for the bird's-eye transform (e.g. straight_lines1.jpg straight_lines2.jpg)")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON object on the last line")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing camera file")
     _add_common(p)
 
@@ -232,7 +234,8 @@ def _add_evaluate(sub) -> None:
     p.add_argument("--camera", default=None, metavar="CAMERA.json",
                    help="undistort every frame with this camera file before the search (the boxes are mapped back to the "
                    "original frames, where the labels are, before scoring)")
-    p.add_argument("--json", action="store_true", help="print the scores as one JSON object on the last line")
+    p.add_argument("--json", action="store_true",
+                   help="print the scores as one JSON object on stdout: files, cameras, all (the human lines go to stderr)")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write into DIR (created) cameras.md and cameras.csv, the scores of each camera, and per camera a "
                    "contact sheet failures_<camera>.png of every miss, false positive and loose match (at most 60 tiles)")
@@ -278,6 +281,6 @@ def _add_mine_negatives(sub) -> None:
                    help="drop a window with this IoU with a kept one of the same scale (default %(default)s)")
     p.add_argument("--dedupe-frames", type=int, default=5, help="... kept in its frame or this many frames before (default %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT/non-vehicles/NAME/ folder")
-    p.add_argument("--json", action="store_true", help="print the counts as one JSON object on the last line")
+    p.add_argument("--json", action="store_true", help="print the counts as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)

@@ -13,7 +13,7 @@ from ..metrics.detection import load_annotations
 from ..training.data import CLASSES, check_split_sizes, default_data_dir, list_extra_negatives, load_dataset
 from ..training.fit import train, with_box_refinement
 from ..training.mining import labelled_dataset
-from .options import feature_config
+from .options import feature_config, human_print
 
 __all__ = ["run"]
 
@@ -61,21 +61,22 @@ def run(args) -> int:
         extra = {"extra_negatives": {k: v for k, v in ds.counts().items() if k in extra_sources}}
     model = model.replace(metrics={**model.metrics, "load_seconds": round(load_s, 3), "drop_duplicates": bool(args.drop_duplicates), **extra})
     report = _train_report(model)
+    say = human_print(args)
     m = model.metrics
-    print(f"images: {m['n_images']} ({', '.join(f'{k} {v}' for k, v in ds.counts().items())})")
-    print(f"features: {m['n_features']} per image ({config})")
+    say(f"images: {m['n_images']} ({', '.join(f'{k} {v}' for k, v in ds.counts().items())})")
+    say(f"features: {m['n_features']} per image ({config})")
     for name in ("random_split", "grouped_split"):
         s = m[name]
-        print(
+        say(
             f"{name.replace('_', ' ')}: accuracy {s['accuracy']:.4f}  precision {s['precision']:.4f}  "
             f"recall {s['recall']:.4f}  (train {s['n_train']}, test {s['n_test']})"
         )
-    print(f"time: load {load_s:.1f} s, features {m['feature_seconds']:.1f} s, final fit {m['fit_seconds']:.1f} s (all {m['n_images']} images)")
+    say(f"time: load {load_s:.1f} s, features {m['feature_seconds']:.1f} s, final fit {m['fit_seconds']:.1f} s (all {m['n_images']} images)")
     if args.model is not None:
         model.save(args.model, overwrite=args.overwrite)
-        print(f"model saved to {args.model}")
+        say(f"model saved to {args.model}")
     else:
-        print("model not saved (pass --model OUT.npz to save it)")
+        say("model not saved (pass --model OUT.npz to save it)")
     if args.json:
         print(json.dumps(report))
     return 0

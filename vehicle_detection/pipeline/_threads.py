@@ -14,8 +14,13 @@ __all__ = ["init_worker", "set_numba_threads"]
 
 
 def init_worker(threads: int) -> None:
-    """Start of a worker process: numba's threads, and Ctrl-C left to the parent between tasks."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the workers (SIGTERM)
+    """Start of a worker process: numba's threads, and Ctrl-C and SIGTERM ignored between tasks.
+
+    The parent stops a running task with SIGTERM (the task cleans up and returns); between
+    tasks the worker ignores both, so that it ends only when the pool is shut down.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     set_numba_threads(threads)
 
 

@@ -23,26 +23,32 @@ from a module that imports nothing heavy) before numba is loaded in it.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import itertools
 import logging
 import multiprocessing
 import os
 import re
+import signal
 import time
 from collections.abc import Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, CancelledError, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from joblib.externals.loky import ProcessPoolExecutor
 
 from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, one_line, require
-from ..io import PARTIAL_SUFFIX, check_output_path, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet, write_parquet, write_tables
+from ..io import (
+    PARTIAL_SUFFIX, check_output_path, check_outputs, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet,
+    write_coco, write_parquet, write_tables,
+)
 from ..io.images import list_images
 from ..io.video import probe_video, read_frames
 from ..tracker import Tracker, TrackerState
@@ -66,6 +72,7 @@ class _Task:
     options: InputOptions
     detector: Detector
     threads: int | None = None
+    shared: tuple[Path, ...] = ()  # outputs written with other inputs' (the images' COCO dataset)
 
     def images(self) -> list[Path]:
         """The images of a folder input (in the frame range), [] when they cannot be listed."""
@@ -79,7 +86,7 @@ class _Task:
 
     def complete(self) -> bool:
         """Whether every output is there already (outputs are committed together, so they are complete)."""
-        files = self.outputs.files(self.kind, self.images())
+        files = [*self.outputs.files(self.kind, self.images()), *self.shared]
         return bool(files) and all(p.is_file() for p in files)
 
 
@@ -99,7 +106,8 @@ def _run_task(task: _Task) -> InputResult:
     t = time.perf_counter()
     try:
         with interrupt_on_signals():  # in a worker process: SIGTERM from the parent cleans up as Ctrl-C
-            return run_input(task.path, task.options, detector=task.detector, outputs=task.outputs, threads=task.threads)
+            r = run_input(task.path, task.options, detector=task.detector, outputs=task.outputs, threads=task.threads)
+            return replace(r, outputs=(*r.outputs, *task.shared)) if task.shared else r
     except VehicleDetectionError as exc:
         return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code)
     except (Exception, KeyboardInterrupt) as exc:  # noqa: B902  (an interrupted worker reports it)
@@ -360,15 +368,21 @@ def detect_many(
     tasks, results = _tasks(paths, out_dir, options, detector, progress=options.progress and jobs == 1 and client is None)
     if table is not None:
         _check_table(Path(table), tasks, options)
+    tasks, coco = _coco_tasks(tasks, out_dir, options)
     report = on_result or (lambda r: None)
     if skip_existing:
-        for k in [k for k, task in tasks.items() if task.complete()]:
+        images_done = all(t.complete() for t in tasks.values() if t.kind == "image")  # their dataset is one file
+        for k in [k for k, task in tasks.items() if task.complete() and (task.kind != "image" or images_done)]:
             task = tasks.pop(k)
-            results[k] = InputResult(task.path, tuple(task.outputs.files(task.kind, task.images())), skipped=True)
+            results[k] = InputResult(task.path, (*task.outputs.files(task.kind, task.images()), *task.shared), skipped=True)
+    if coco is not None and any(t.kind == "image" for t in tasks.values()):
+        check_outputs([coco], overwrite=options.overwrite, inputs=[*(t.path for t in tasks.values()), *options.inputs])
     for k in sorted(results):
         report(results[k])
     _run(tasks, jobs, client, chunk_frames, results, report, scheduler_timeout)
     ordered = [results[k] for k in range(len(results))]
+    if coco is not None and any(t.kind == "image" for t in tasks.values()):
+        _write_coco_dataset(coco, [r for r in ordered if r.image is not None], overwrite=options.overwrite)
     if table is not None:
         _write_combined(Path(table), ordered, overwrite=options.overwrite)
     return ordered
@@ -417,6 +431,46 @@ def _refuse_images_into_folder_inputs(tasks: dict[int, _Task]) -> None:
         if t.kind == "image" and out is not None and Path(os.path.abspath(out)).parent in folders:
             raise OutputError(f"{out}: the annotated image of {t.path} would be written into {folders[Path(os.path.abspath(out)).parent]}, "
                               "a folder of images of this batch, and read as one of its images; choose another --out-dir")
+
+
+def _coco_tasks(tasks: dict[int, _Task], out_dir, options: InputOptions) -> tuple[dict[int, _Task], Path | None]:
+    """COCO where it applies: the single images of a batch make one dataset, ``images_coco.json``
+    (in ``out_dir``, else beside the first image; returned, None when there is none); videos get
+    the other formats (the boxes CSV when COCO was the only one); folders of images keep their own."""
+    if "coco" not in options.formats:
+        return tasks, None
+    images = [t for t in tasks.values() if t.kind == "image"]
+    dest = None
+    if images:
+        dest = (Path(out_dir) if out_dir is not None else images[0].path.parent) / "images_coco.json"
+        for t in tasks.values():
+            if Path(os.path.abspath(dest)) in {Path(os.path.abspath(o)) for o in t.outputs.files(t.kind)}:
+                raise UsageError(f"{t.path} and the images' COCO dataset would both write {dest}; give another --out-dir")
+    out = {}
+    for k, t in tasks.items():
+        if t.kind in ("video", "image"):
+            tables = {f: p for f, p in t.outputs.tables.items() if f != "coco"}
+            if not tables and t.kind == "video":
+                tables = default_outputs(t.path, t.kind, None if out_dir is None else Path(out_dir), ("csv",)).tables
+            t = replace(t, outputs=replace(t.outputs, tables=tables), shared=(dest,) if t.kind == "image" else ())
+        out[k] = t
+    return out, dest
+
+
+def _write_coco_dataset(dest: Path, results: Sequence[InputResult], *, overwrite: bool) -> None:
+    """One COCO dataset of single images (``r.image``: size and boxes), ``file_name`` relative to its folder."""
+    parts, names, sizes = [], [], []
+    for i, r in enumerate(results):
+        size, boxes = r.image
+        parts.append(boxes.replace(frame=np.full(len(boxes), i, dtype=np.int64)))
+        try:
+            names.append(os.path.relpath(r.path, dest.parent))
+        except ValueError:  # another drive
+            names.append(str(r.path))
+        sizes.append(size)
+    table = Detections.concatenate(parts) if parts else Detections.empty()
+    with output_batch():
+        write_coco(dest, table, names, sizes, overwrite=overwrite, inputs=[r.path for r in results])
 
 
 def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, results: dict, report,
@@ -550,10 +604,14 @@ def _remove_partials(task: _Task) -> None:
 def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None:
     threads = max(1, (os.cpu_count() or 1) // jobs)
     tasks = {k: replace(task, threads=threads) for k, task in tasks.items()}
-    ctx = multiprocessing.get_context("spawn")  # no fork of a process with threads (numba, PyAV)
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx, initializer=init_worker, initargs=(threads,))
+    # loky (joblib's) starts fresh interpreters (no fork of a process with threads: numba, PyAV) that,
+    # unlike multiprocessing's "spawn", do not re-run the caller's script: detect_many works in a
+    # plain script without an ``if __name__ == "__main__":`` guard.
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), initializer=init_worker, initargs=(threads,))
+    futures: dict = {}
     try:
-        futures = {pool.submit(_run_task, task): k for k, task in tasks.items()}
+        for k, task in tasks.items():
+            futures[pool.submit(_run_task, task)] = k
         pending = set(futures)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -565,19 +623,24 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
                     results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: worker failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
                 report(results[k])
     except BaseException:
-        # Ctrl-C, SIGTERM: stop the workers the same way (each cleans up its partial outputs), then wait for them.
-        # Repeated until every worker has exited: a worker may have taken the next queued input
+        # Ctrl-C, SIGTERM: interrupt the running tasks the same way (each cleans up its partial outputs
+        # and returns), and start no other. A worker ignores SIGTERM between tasks (init_worker), so it
+        # is never killed mid-clean-up, neither by this signal nor by loky, which kills every worker
+        # when one dies. Repeated until every task is done: a worker may have taken a queued input
         # after cleaning up the first (a second SIGTERM during a clean-up is ignored).
+        for fut in futures:
+            fut.cancel()
         procs = list(getattr(pool, "_processes", {}).values())
         for _ in range(600):
-            alive = [p for p in procs if p.is_alive()]
-            if not alive:
+            running = [fut for fut in futures if not fut.done()]
+            if not running:
                 break
-            for proc in alive:
-                proc.terminate()
-            for proc in alive:
-                proc.join(0.1)
-        pool.shutdown(wait=True, cancel_futures=True)
+            for proc in procs:
+                if proc.is_alive():
+                    with contextlib.suppress(OSError):
+                        os.kill(proc.pid, signal.SIGTERM)
+            wait(running, timeout=0.1)
+        pool.shutdown(wait=True, kill_workers=any(not fut.done() for fut in futures))
         raise
     pool.shutdown(wait=True)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, OutputError, UsageError
+from ..horizon import TOLERANCE, estimate_horizon
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
 from ..io.video import probe_video
@@ -71,6 +72,12 @@ class InputOptions:
         A progress bar for videos (on a terminal).
     inputs : tuple of Path
         Other files the run reads (a model file, a camera file): no output may be one of them.
+    image_horizon : bool
+        Images (``--horizon auto``): move the search bands to the horizon estimated from each
+        image's own road lines (:func:`~vehicle_detection.horizon.estimate_horizon` with one
+        frame), when the detector estimates horizons; an image without usable lines is searched
+        where the plan says, and a note says so. False: images are searched where the plan says
+        (a video's horizon is estimated from its first frames in any case).
     """
 
     frames: tuple[int, int | None] | range | None = None
@@ -81,6 +88,7 @@ class InputOptions:
     overwrite: bool = False
     progress: bool = False
     inputs: tuple[Path, ...] = ()
+    image_horizon: bool = False
 
     def __post_init__(self) -> None:
         formats = tuple(dict.fromkeys(self.formats)) or ("csv",)
@@ -146,6 +154,10 @@ class InputResult:
     notes : tuple of str
         What else the run found out, one line each: the footage's black bars and overlays and
         its horizon (videos), each image's count (images).
+    image : tuple or None
+        An image input: ``(size, boxes)``, its ``(H, W)`` as searched and its boxes, for the one
+        COCO dataset of a batch's images (:func:`~vehicle_detection.pipeline.batch.detect_many`);
+        None for videos and folders.
     """
 
     path: Path
@@ -157,6 +169,7 @@ class InputResult:
     seconds: float = 0.0
     exit_code: int = 0
     notes: tuple[str, ...] = ()
+    image: tuple | None = None
 
     @property
     def ok(self) -> bool:
@@ -232,7 +245,13 @@ def _folder_inputs(folder: Path) -> list[tuple[Path, str, str | None]]:
 
 
 def default_outputs(
-    path: Path, kind: str, out_dir: Path | None = None, formats: Sequence[str] = ("csv",), *, video: bool = True
+    path: Path,
+    kind: str,
+    out_dir: Path | None = None,
+    formats: Sequence[str] = ("csv",),
+    *,
+    video: bool = True,
+    annotated: str | os.PathLike | None = None,
 ) -> Outputs:
     """The outputs of one input under the default names.
 
@@ -240,13 +259,20 @@ def default_outputs(
     ``NAME_detected/`` (None when not ``video``) and the tables ``NAME`` + the suffix of
     :data:`~vehicle_detection.io.formats.FORMATS` (``NAME_boxes.csv``, ...), except the boxes
     CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``).
+
+    ``annotated`` (``--out``) names the annotated output; a run's outputs go together, so the
+    tables then go beside it (unless ``out_dir`` is given), not beside the input.
     """
     if path.name in ("", ".", ".."):
         path = Path(os.path.abspath(path))
+    if annotated is not None:
+        annotated = Path(annotated)
+        if out_dir is None:
+            out_dir = annotated.parent
     base = path.parent if out_dir is None else Path(out_dir)
     stem = path.name if kind == "folder" else path.stem
     suffix = {"video": ".mp4", "image": path.suffix}.get(kind, "")
-    out = base / f"{stem}_detected{suffix}"
+    out = base / f"{stem}_detected{suffix}" if annotated is None else annotated
     tables = {fmt: out / "boxes.csv" if (fmt == "csv" and kind == "folder") else base / f"{stem}{FORMATS[fmt]}" for fmt in formats}
     return Outputs(out if video else None, tables)
 
@@ -334,10 +360,11 @@ def run_input(
     with output_batch():
         if kind == "video":
             n_boxes, n_frames, notes = _run_video(path, options, detector, outputs, threads)
+            image = None
         else:
-            n_boxes, n_frames, notes = _run_images(path, kind, images, options, detector, outputs, read)
+            n_boxes, n_frames, notes, image = _run_images(path, kind, images, options, detector, outputs, read)
     return InputResult(path, tuple(outputs.files(kind, images)), n_boxes, n_frames=n_frames, seconds=time.perf_counter() - t,
-                       notes=tuple(notes))
+                       notes=tuple(notes), image=image if kind == "image" else None)
 
 
 def _check_range(path: Path, kind: str, start: int, end: int | None, images: list[Path]) -> None:
@@ -384,17 +411,34 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
         options.road.check(image.shape[1], image.shape[0], str(f))
         image = survey.undistort(image)
         sizes.append(image.shape[:2])
-        boxes = survey.measure(detector.detect_image(image).replace(frame=i))
+        searcher = detector
+        if options.image_horizon and detector.estimates_horizon:
+            searcher, note = _image_horizon(detector, image, f)
+            notes.append(note)
+        boxes = survey.measure(searcher.detect_image(image).replace(frame=i))
         lane = survey.find_lane(image)
         survey.record(i, lane)
         lanes += survey.lane_rows
         if o is not None:
             write_image(o, draw_detections(survey.draw(image, lane), boxes), overwrite=options.overwrite, inputs=read)
         found.append(boxes)
-        notes.append(f"{f}: {len(boxes)} vehicles" + (f" -> {o}" if o is not None else ""))
+        notes.append(f"{f}: {len(boxes)} vehicle{'' if len(boxes) == 1 else 's'}" + (f" -> {o}" if o is not None else ""))
     table = Detections.concatenate(found) if found else Detections.empty()
     if kind == "folder":
         table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})
     write_tables(outputs.tables, table, name=path.name, images=[(f.name, s) for f, s in zip(images, sizes)], first=first,
                  lanes=lanes, overwrite=options.overwrite, inputs=read)
-    return len(table), len(images), notes
+    return len(table), len(images), notes, ((sizes[0], table) if len(images) == 1 else None)
+
+
+def _image_horizon(detector: Detector, image, name: Path) -> tuple[Detector, str]:
+    """The detector for one image at the horizon of its own road lines, and a note saying what was done."""
+    reference = detector.config.plan.reference_horizon
+    estimate = estimate_horizon([image], min_frames=1)
+    if estimate is None:
+        return detector, (f"{name}: horizon: no road lines to estimate it from in this image; searched where the plan "
+                          f"says ({reference:.3f} of the height)")
+    if abs(estimate - reference) <= TOLERANCE:
+        return detector, f"{name}: horizon: {estimate:.3f} of the height, estimated from the image (the plan's {reference:.3f}: bands unchanged)"
+    return detector.with_horizon(estimate), (f"{name}: horizon: {estimate:.3f} of the height, estimated from the image (the plan's "
+                                             f"{reference:.3f}); search bands moved accordingly")

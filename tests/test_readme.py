@@ -1,0 +1,106 @@
+"""The README's ```bash blocks, replayed in order in a fresh copy of the repository.
+
+A copy of the tracked files (``git ls-files``) stands in for a fresh clone, with the shared data
+reachable as ``../shared/data`` (as beside the checkout). Every command runs as written, in
+order, with ``vehicle-detection`` running the copy's package; a command that fails fails the
+test. The commands that cannot run here are skipped, each for a stated reason (installs, the
+test suite itself, servers, minutes of training); everything else runs, so a new block runs too.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+
+#: (pattern at the start of a command, reason it is not run here). Checked in order.
+SKIPPED = [
+    (r"(python -m )?pip install\b", "an install: it would change the environment running the tests (the copy's package runs in place)"),
+    (r"python -m pytest\b", "the test suite itself"),
+    (r"dask (scheduler|worker)\b", "a dask cluster's long-running servers (tests/test_batch.py runs the batch on a LocalCluster)"),
+    (r"vehicle-detection detect \S+ .*--scheduler tcp://HOST", "needs the cluster above"),
+    (r"git show ", "rebuilding the embedded model: needs the git history, then minutes of mining and training "
+                   "(tests/test_mining.py and tests/test_cli.py run both on small inputs)"),
+    (r"vehicle-detection (mine-negatives|train)\b", "rebuilding the embedded model: minutes of mining and training"),
+    (r"jupyter lab\b", "an interactive server"),
+    (r"python tools/regenerate\.py", "re-runs the notebooks, minutes (tests/test_notebooks.py executes them)"),
+]
+#: An install before ``&&``: the copy's package is used in place (PYTHONPATH), so only the rest runs.
+INSTALL = re.compile(r"^python -m pip install [^&]*&&\s*")
+#: Seconds a command may take (the slowest here, a batch with --jobs 2, takes well under a minute).
+TIMEOUT = 600
+
+
+def bash_blocks(text: str) -> list[list[str]]:
+    """The commands of each ```bash block, in order (blank and comment lines left out)."""
+    blocks = re.findall(r"^```bash\n(.*?)^```", text, flags=re.S | re.M)
+    return [[line.strip() for line in b.splitlines() if line.strip() and not line.strip().startswith("#")] for b in blocks]
+
+
+def plan(commands: list[str]) -> list[tuple[str, str | None]]:
+    """Each command as it runs here, or with the reason it does not."""
+    out = []
+    for command in commands:
+        command = INSTALL.sub("", command)
+        reason = next((why for pattern, why in SKIPPED if re.match(pattern, command)), None)
+        out.append((command, reason))
+    return out
+
+
+def test_the_readme_blocks_are_found_and_their_skips_are_few():
+    blocks = bash_blocks((REPO / "README.md").read_text())
+    planned = plan([c for b in blocks for c in b])
+    run = [c for c, why in planned if why is None]
+    assert len(blocks) >= 5 and len(run) >= 5, planned
+    assert run[0] == "vehicle-detection detect test_video.mp4"  # the main job, after the install
+    assert all("pip install" not in c for c in run), run  # never an install on the environment running the tests
+    assert any("pip install" in c and why for c, why in planned)  # an install command is there, skipped
+
+
+@pytest.fixture
+def clone(tmp_path) -> Path:
+    if shutil.which("git") is None or not (REPO / ".git").exists():
+        pytest.skip("not a git checkout: the tracked files are unknown")
+    if not (SHARED / "data").is_dir():
+        pytest.skip(f"{SHARED / 'data'} not found: the README's commands read ../shared/data")
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True).stdout.decode().split("\0")
+    root = tmp_path / "clone"
+    for name in filter(None, files):
+        src = REPO / name
+        if src.is_file():
+            (root / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, root / name)
+    (tmp_path / "shared").symlink_to(SHARED, target_is_directory=True)
+    return root
+
+
+def test_every_readme_bash_block_runs_as_written_in_order(clone, tmp_path):
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    shim = bin_dir / "vehicle-detection"  # the command, running the copy's package
+    shim.write_text(f'#!/bin/sh\nexec "{sys.executable}" -m vehicle_detection.cli "$@"\n')
+    shim.chmod(0o755)
+    env = {**os.environ, "PYTHONPATH": str(clone), "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}"}
+    env["PIP_REQUIRE_VIRTUALENV"] = "1"  # a pip install that slips through is refused, never run on this environment
+    env.pop("VEHICLE_DETECTION_DATA", None)
+    ran, skipped = [], []
+    for command, why in plan([c for b in bash_blocks((clone / "README.md").read_text()) for c in b]):
+        if why is not None:
+            skipped.append((command, why))
+            continue
+        proc = subprocess.run(["bash", "-c", command], cwd=clone, env=env, capture_output=True, text=True, timeout=TIMEOUT)
+        assert proc.returncode == 0, f"README command failed (exit {proc.returncode}): {command}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+        ran.append(command)
+    # What the commands promise is there.
+    assert (clone / "test_video_detected.mp4").is_file() and (clone / "test_video_boxes.csv").is_file()
+    assert (clone / "camera.json").is_file() and (clone / "test_video_lanes.csv").is_file()
+    assert {"test_video_boxes.csv", "test_images_detected"} <= {p.name for p in (clone / "out").iterdir()}
+    assert len(ran) >= 5, (ran, skipped)
