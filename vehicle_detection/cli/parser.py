@@ -203,9 +203,21 @@ def _add_detect(sub) -> None:
     p.add_argument("--camera", default=None, metavar="CAMERA.json",
                    help="undistort every frame with this camera file (from 'calibrate') before the search; with its "
                    "bird's-eye transform, boxes also get distances (m) and relative speeds (m/s)")
-    p.add_argument("--lanes", action="store_true", help="find and draw the lane, its radius and the car's offset (needs --camera with a bird's-eye transform)")
+    p.add_argument("--lanes", action="store_true",
+                   help="find and draw the lane, its radius and the car's offset; boxes get distances. The road plane "
+                   "(bird's-eye view) is the --camera file's when it has one, else estimated from each input's own frames "
+                   "(printed); an input without visible lane lines runs without lanes, saying so")
     p.add_argument("--lanes-csv", default=None, metavar="L.csv",
                    help="write frame,curvature_m,offset_m per frame of a single input (implies --lanes; a batch: --format lanes)")
+    p.add_argument("--save-camera", default=None, metavar="C.json",
+                   help="save the road plane estimated from the footage of a single input as a camera file, for "
+                   "--camera C.json next time (implies --lanes; written only when a plane is found)")
+    p.add_argument("--report", action="store_true",
+                   help="also write NAME_report.html per input, beside its outputs: track timeline, contact sheet, boxes "
+                   "per frame, distances and lanes (needs vehicle-detection[report])")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object on standard output (each input's summary, notes and road estimate); the "
+                   "human lines go to standard error")
     p.add_argument("--no-progress", action="store_true")
     _add_common(p)
 

@@ -2,8 +2,9 @@
 
 An input is a video, an image, or a folder of images (:func:`input_kind`). :func:`run_input`
 runs one with :class:`InputOptions` (frame range, road, tables, video or not, encoding) and
-writes its outputs (:class:`Outputs`: the annotated video, image or folder, and the tables),
-all committed together: a run that fails or is stopped part-way leaves no new file and every
+writes its outputs (:class:`Outputs`: the annotated video, image or folder, the tables, and
+optionally the HTML report and the camera file of a road plane estimated from the footage), all
+committed together: a run that fails or is stopped part-way leaves no new file and every
 earlier output as it was. The command line runs one input with it, and :func:`detect_many`
 (:mod:`vehicle_detection.pipeline.batch`) runs each input of a batch with it, so every option
 works the same in both.
@@ -20,14 +21,16 @@ from pathlib import Path
 
 from ..detections import Detections
 from ..detector import Detector
-from ..errors import InputError, OutputError, UsageError
+from ..errors import InputError, OutputError, UsageError, require
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
 from ..io.video import probe_video
+from ..road.autocamera import RoadEstimate, save_estimate
 from ..road.survey import Road
 from ..tracker import Tracker, TrackerState
 from ..viz.drawing import draw_detections
-from .video import frame_range, process_video
+from ..viz.report import RunSummary, summarize, write_html_report
+from .video import frame_range, run_video
 
 __all__ = [
     "VIDEO_EXTENSIONS",
@@ -71,6 +74,13 @@ class InputOptions:
         A progress bar for videos (on a terminal).
     inputs : tuple of Path
         Other files the run reads (a model file, a camera file): no output may be one of them.
+    report : bool
+        Also write the run's HTML report (:func:`~vehicle_detection.viz.report.write_html_report`),
+        ``NAME_report.html`` beside the tables; needs matplotlib (the ``report`` extra).
+
+    With ``road.lanes`` and no road plane (no camera file with a bird's-eye transform), each input
+    gets the plane estimated from its own frames (:meth:`Road.for_footage`), or runs without
+    lanes when they show no lane lines.
     """
 
     frames: tuple[int, int | None] | range | None = None
@@ -81,6 +91,7 @@ class InputOptions:
     overwrite: bool = False
     progress: bool = False
     inputs: tuple[Path, ...] = ()
+    report: bool = False
 
     def __post_init__(self) -> None:
         formats = tuple(dict.fromkeys(self.formats)) or ("csv",)
@@ -104,21 +115,28 @@ class Outputs:
         The annotated video, image, or folder of images; None: none is written.
     tables : mapping of str to Path
         Format -> file.
+    report : Path or None
+        The HTML report; None: none is written.
+    camera : Path or None
+        The camera file of the road plane estimated from the footage (``detect --save-camera``);
+        None: none is written (nor when nothing is estimated).
     """
 
     annotated: Path | None
     tables: Mapping[str, Path]
+    report: Path | None = None
+    camera: Path | None = None
 
     def files(self, kind: str, images: Sequence[Path] = ()) -> list[Path]:
         """Every file written for an input of ``kind`` (for a folder, one annotated image per
-        file of ``images``), the annotated ones first."""
+        file of ``images``), the annotated ones first, then the tables, the report and the camera file."""
         if self.annotated is None:
             drawn = []
         elif kind == "folder":
             drawn = [self.annotated / f.name for f in images]
         else:
             drawn = [self.annotated]
-        return [*drawn, *self.tables.values()]
+        return [*drawn, *self.tables.values(), *(p for p in (self.report, self.camera) if p is not None)]
 
 
 @dataclass(frozen=True)
@@ -144,8 +162,15 @@ class InputResult:
     exit_code : int
         The CLI exit code of its error (0 when it succeeded).
     notes : tuple of str
-        What else the run found out, one line each: the footage's black bars and overlays and
-        its horizon (videos), each image's count (images).
+        What else the run found out, one line each: the road plane estimated from the footage
+        (or why there is none), the footage's black bars and overlays and its horizon (videos),
+        each image's count (folders of images).
+    summary : RunSummary or None
+        Frames, vehicles, boxes, speed and outputs (:func:`~vehicle_detection.viz.report.summarize`):
+        ``summary.line()`` is what ``detect`` prints. None when skipped or failed.
+    estimate : RoadEstimate or None
+        The road plane estimated from the footage, or why there is none (lanes without a road
+        plane); None when nothing was estimated.
     """
 
     path: Path
@@ -157,6 +182,8 @@ class InputResult:
     seconds: float = 0.0
     exit_code: int = 0
     notes: tuple[str, ...] = ()
+    summary: RunSummary | None = None
+    estimate: RoadEstimate | None = None
 
     @property
     def ok(self) -> bool:
@@ -232,14 +259,16 @@ def _folder_inputs(folder: Path) -> list[tuple[Path, str, str | None]]:
 
 
 def default_outputs(
-    path: Path, kind: str, out_dir: Path | None = None, formats: Sequence[str] = ("csv",), *, video: bool = True
+    path: Path, kind: str, out_dir: Path | None = None, formats: Sequence[str] = ("csv",), *, video: bool = True,
+    report: bool = False,
 ) -> Outputs:
     """The outputs of one input under the default names.
 
     Beside the input, or in ``out_dir``: ``NAME_detected.mp4`` / ``NAME_detected.EXT`` /
     ``NAME_detected/`` (None when not ``video``) and the tables ``NAME`` + the suffix of
     :data:`~vehicle_detection.io.formats.FORMATS` (``NAME_boxes.csv``, ...), except the boxes
-    CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``).
+    CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``); with
+    ``report``, ``NAME_report.html``.
     """
     if path.name in ("", ".", ".."):
         path = Path(os.path.abspath(path))
@@ -248,7 +277,7 @@ def default_outputs(
     suffix = {"video": ".mp4", "image": path.suffix}.get(kind, "")
     out = base / f"{stem}_detected{suffix}"
     tables = {fmt: out / "boxes.csv" if (fmt == "csv" and kind == "folder") else base / f"{stem}{FORMATS[fmt]}" for fmt in formats}
-    return Outputs(out if video else None, tables)
+    return Outputs(out if video else None, tables, base / f"{stem}_report.html" if report else None)
 
 
 def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, overwrite: bool, inputs: Iterable[Path]) -> None:
@@ -323,30 +352,72 @@ def run_input(
     if kind is None:
         raise InputError(unknown_type(path))
     if outputs is None:
-        outputs = default_outputs(path, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video)
+        outputs = default_outputs(path, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video,
+                                  report=options.report)
     start, end = options.frames
     images = list_images(path)[start:end] if kind == "folder" else [path] if kind == "image" else []
     if "coco" in outputs.tables and kind == "video":
         raise InputError(f"{path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
     read = [path, *images, *options.inputs]
     check_input_outputs(kind, outputs, images, overwrite=options.overwrite, inputs=read)
+    if outputs.report is not None:
+        require("matplotlib.figure", "report", "the HTML report")  # before any work
+    road, estimate = options.road, None
+    if road.estimates:  # lanes without a road plane: the plane from the footage, or no lanes
+        road, estimate = road.for_footage(path if kind == "video" else _sample_images(path, images, road), start=start)
+        options = replace(options, road=road)
+    notes = [] if estimate is None else estimate.summary()
     with output_batch():
         if kind == "video":
-            n_boxes, n_frames, notes = _run_video(path, options, detector, outputs, threads)
+            table, n_frames, more, lane_rows = _run_video(path, options, detector, outputs, threads)
         else:
-            n_boxes, n_frames, notes = _run_images(path, kind, images, options, detector, outputs, read)
-    return InputResult(path, tuple(outputs.files(kind, images)), n_boxes, n_frames=n_frames, seconds=time.perf_counter() - t,
-                       notes=tuple(notes))
+            table, n_frames, more, lane_rows = _run_images(path, kind, images, options, detector, outputs, read)
+        notes += more
+        if outputs.report is not None:
+            write_html_report(outputs.report, table, video=path if kind == "video" else None, lanes=lane_rows if road.lanes else None,
+                              n_frames=start + n_frames, title=path.name, overwrite=options.overwrite)
+        if outputs.camera is not None and estimate is not None and estimate.ok:
+            save_estimate(outputs.camera, road.plane, estimate, options.road.camera, overwrite=options.overwrite, inputs=read)
+        elif outputs.camera is not None:
+            notes.append(f"{outputs.camera}: not written (no road plane estimated from the footage)")
+            outputs = replace(outputs, camera=None)
+    files = tuple(outputs.files(kind, images))
+    seconds = time.perf_counter() - t
+    summary = summarize(path, table, frames=n_frames, seconds=seconds, outputs=files, unit="frame" if kind == "video" else "image",
+                        first=start if kind != "image" else 0)
+    return InputResult(path, files, len(table), n_frames=n_frames, seconds=seconds, notes=tuple(notes), summary=summary,
+                       estimate=estimate)
+
+
+def _sample_images(path: Path, images: Sequence[Path], road: Road, limit: int = 60) -> list:
+    """Up to ``limit`` of ``images`` (spread evenly), read: what a road plane is estimated from.
+
+    Raises
+    ------
+    InputError
+        Naming the image that is not of the camera's size, or the folder whose images differ in size.
+    """
+    step = max(1, -(-len(images) // limit))
+    frames = []
+    for f in images[::step]:
+        frame = read_image(f)
+        road.check_frame(frame.shape[1], frame.shape[0], str(f))
+        if frames and frame.shape != frames[0].shape:
+            raise InputError(f"{path}: its images are not of one size ({f.name} is {frame.shape[1]}x{frame.shape[0]}, "
+                             f"{images[0].name} {frames[0].shape[1]}x{frames[0].shape[0]}); the road plane is estimated "
+                             "from images of one camera: give --camera, or run each size on its own")
+        frames.append(frame)
+    return frames
 
 
 def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: Outputs, threads: int | None):
     start, end = options.frames
     tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))
-    table = process_video(
+    table, lane_rows = run_video(
         path, outputs.annotated, detector=detector, frames=(start, end), road=options.road, encoding=options.encoding,
         tables=outputs.tables, overwrite=options.overwrite, progress=options.progress, tracker=tracker, threads=threads,
     )
-    return len(table), tracker.state.frame_index - start, _video_notes(tracker, detector)
+    return table, tracker.state.frame_index - start, _video_notes(tracker, detector), lane_rows
 
 
 def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
@@ -379,10 +450,11 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
         if o is not None:
             write_image(o, draw_detections(survey.draw(image, lane), boxes), overwrite=options.overwrite, inputs=read)
         found.append(boxes)
-        notes.append(f"{f}: {len(boxes)} vehicles" + (f" -> {o}" if o is not None else ""))
+        if kind == "folder":
+            notes.append(f"{f}: {len(boxes)} {'vehicle' if len(boxes) == 1 else 'vehicles'}" + (f" -> {o}" if o is not None else ""))
     table = Detections.concatenate(found) if found else Detections.empty()
     if kind == "folder":
         table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})
     write_tables(outputs.tables, table, name=path.name, images=[(f.name, s) for f, s in zip(images, sizes)], first=first,
                  lanes=lanes, overwrite=options.overwrite, inputs=read)
-    return len(table), len(images), notes
+    return table, len(images), notes, lanes
