@@ -301,7 +301,8 @@ def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, 
                 what = _TABLE_NAMES.get(fmt, f"{fmt} table")
                 raise OutputError(f"{out}: the annotated output and the {what} cannot be the same file")
     written = outputs.files(kind, images)
-    for o in written[: len(written) - len(outputs.tables)] if kind != "video" else ():
+    drawn = 0 if out is None else len(images) if kind == "folder" else 1
+    for o in written[:drawn] if kind != "video" else ():
         check_image_output(o)  # e.g. .webp without a WebP encoder
     check_outputs(written, overwrite=overwrite, inputs=inputs)
 
@@ -367,15 +368,25 @@ def run_input(
         road, estimate = road.for_footage(path if kind == "video" else _sample_images(path, images, road), start=start)
         options = replace(options, road=road)
     notes = [] if estimate is None else estimate.summary()
+    # Lanes asked for, and no lane lines in the footage: the lanes table says "no lane" in every frame.
+    unmeasured = estimate is not None and not estimate.ok and "lanes" in outputs.tables
+    run_outputs = replace(outputs, tables={k: v for k, v in outputs.tables.items() if k != "lanes"}) if unmeasured else outputs
+    first = start if kind != "image" else 0
     with output_batch():
         if kind == "video":
-            table, n_frames, more, lane_rows = _run_video(path, options, detector, outputs, threads)
+            table, n_frames, more, lane_rows = _run_video(path, options, detector, run_outputs, threads)
         else:
-            table, n_frames, more, lane_rows = _run_images(path, kind, images, options, detector, outputs, read)
+            table, n_frames, more, lane_rows = _run_images(path, kind, images, options, detector, run_outputs, read)
         notes += more
+        if estimate is not None and not estimate.ok:
+            lane_rows = [(i, None, None) for i in range(first, first + n_frames)]
+        if unmeasured:
+            write_tables({"lanes": outputs.tables["lanes"]}, table, name=path.name, lanes=lane_rows, overwrite=options.overwrite,
+                         inputs=read)
         if outputs.report is not None:
-            write_html_report(outputs.report, table, video=path if kind == "video" else None, lanes=lane_rows if road.lanes else None,
-                              n_frames=start + n_frames, title=path.name, overwrite=options.overwrite)
+            write_html_report(outputs.report, table, video=path if kind == "video" else None,
+                              lanes=lane_rows if (road.lanes or estimate is not None) else None, n_frames=first + n_frames,
+                              title=path.name, overwrite=options.overwrite)
         if outputs.camera is not None and estimate is not None and estimate.ok:
             save_estimate(outputs.camera, road.plane, estimate, options.road.camera, overwrite=options.overwrite, inputs=read)
         elif outputs.camera is not None:
@@ -384,7 +395,7 @@ def run_input(
     files = tuple(outputs.files(kind, images))
     seconds = time.perf_counter() - t
     summary = summarize(path, table, frames=n_frames, seconds=seconds, outputs=files, unit="frame" if kind == "video" else "image",
-                        first=start if kind != "image" else 0)
+                        first=first)
     return InputResult(path, files, len(table), n_frames=n_frames, seconds=seconds, notes=tuple(notes), summary=summary,
                        estimate=estimate)
 
