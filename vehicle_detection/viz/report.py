@@ -193,9 +193,11 @@ def summarize(
     >>> summarize("clip.mp4", d, frames=25).line()
     'clip.mp4: 25 frames, 1 vehicle, 2 boxes; nothing written'
     """
-    if len(detections) and not first <= int(detections.frame.min()) <= int(detections.frame.max()) < first + frames:
-        raise ValueError(f"the boxes lie in frames {int(detections.frame.min())} to {int(detections.frame.max())}, but "
-                         f"the frames processed are {first} to {first + frames - 1}")
+    if len(detections):
+        lo, hi = int(detections.frame.min()), int(detections.frame.max())
+        if lo < first or hi >= first + frames:
+            raise ValueError(f"a box lies in frame {lo if lo < first else hi}, but only frames {first} to {first + frames - 1} "
+                             "were processed")
     tracks = None
     if detections.track_id is not None:
         tracks = len(np.unique(detections.track_id[detections.track_id >= 0]))
