@@ -265,3 +265,42 @@ def test_report_command_refusals(tmp_path, capsys, what):
     assert len(err) == 1 and err[0].startswith(f"vehicle-detection: error: {message}")
     assert (tmp_path / "b_report.html").read_text() == "earlier"
     assert not (tmp_path / "L_report.html").exists()
+
+
+# --- the same through the Python API ---------------------------------------------------------------------
+
+
+def test_run_input_estimates_the_road_plane_and_summarizes(clips, plain_video, tmp_path):
+    from vehicle_detection.pipeline.inputs import InputOptions, run_input
+    from vehicle_detection.road.autocamera import road_transform
+    from vehicle_detection.road.survey import Road
+
+    options = InputOptions(road=Road(lanes=True), video=False, formats=("csv", "lanes"))
+    result = run_input(clips / "v.mp4", options, out_dir=tmp_path)
+    plane, estimate = road_transform(clips / "v.mp4")
+    assert result.estimate == estimate and estimate.ok
+    road, again = Road(lanes=True).for_footage(clips / "v.mp4")
+    assert road.plane.to_dict() == plane.to_dict() and road.lanes and again == estimate
+    assert result.summary.to_dict()["frames"] == 16 and result.summary.boxes == result.n_boxes
+    assert result.summary.line() == f"{clips / 'v.mp4'}: " + result.summary.line().split(": ", 1)[1]
+    lanes = read_lanes_csv(tmp_path / "v_lanes.csv")
+    assert np.isfinite(lanes["curvature_m"]).sum() >= 12
+    # no lane lines: no plane, no lanes, and the reason
+    road, why = Road(lanes=True).for_footage(plain_video)
+    assert road.plane is None and not road.lanes and why.reason.startswith("no lane lines seen")
+    # nothing to estimate: lanes not asked for, or the plane known
+    assert Road().for_footage(plain_video) == (Road(), None)
+    known = Road(birds_eye=plane, lanes=True)
+    same, nothing = known.for_footage(plain_video)
+    assert same is known and nothing is None
+
+
+def test_the_estimate_refuses_a_video_of_another_size_than_the_camera(plain_video, tmp_path, capsys):
+    camera = tmp_path / "cam.json"
+    matrix = [[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]]
+    vd.Camera(image_size=(1280, 720), matrix=matrix, distortion=[0.0] * 5).save(camera)
+    code, out, err = run(capsys, "detect", plain_video, "--camera", camera, "--lanes", "--no-video", "--boxes", tmp_path / "b.csv")
+    assert code == 3 and out == []
+    assert err == [f"vehicle-detection: error: {plain_video}: the video is 640x360, but the camera file was calibrated for "
+                   "1280x720 images; calibrate this camera at this size"]
+    assert not (tmp_path / "b.csv").exists()
