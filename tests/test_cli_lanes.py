@@ -304,3 +304,14 @@ def test_the_estimate_refuses_a_video_of_another_size_than_the_camera(plain_vide
     assert err == [f"vehicle-detection: error: {plain_video}: the video is 640x360, but the camera file was calibrated for "
                    "1280x720 images; calibrate this camera at this size"]
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("existing", ["v_report.html", "C.json"])
+def test_an_existing_report_or_camera_file_is_refused_before_any_work(clips, tmp_path, capsys, existing):
+    (tmp_path / existing).write_text("earlier")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, out, err = run(capsys, "detect", clips / "v.mp4", "--boxes", tmp_path / "b.csv", "--no-video", "--report", "--save-camera",
+                         tmp_path / "C.json", "--no-progress")
+    assert code == 5 and out == []
+    assert err == [f"vehicle-detection: error: {tmp_path / existing}: output exists; pass --overwrite (overwrite=True) to replace it"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and (tmp_path / existing).read_text() == "earlier"
