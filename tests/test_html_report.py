@@ -78,6 +78,14 @@ def test_summary_of_images_and_of_a_box():
 def test_summary_refuses_boxes_beyond_the_frames():
     with pytest.raises(ValueError, match="frame 20"):
         summarize("clip.mp4", two_tracks(), frames=20)
+    # a run from frame `first` (detect --start): its boxes lie in first .. first + frames - 1
+    lo, last = int(two_tracks().frame.min()), int(two_tracks().frame.max())
+    assert summarize("clip.mp4", two_tracks(), frames=last - lo + 1, first=lo).frames == last - lo + 1
+    with pytest.raises(ValueError, match=f"frame {last}, but only frames {lo} to {last - 1}"):
+        summarize("clip.mp4", two_tracks(), frames=last - lo, first=lo)
+    first = int(two_tracks().frame.min())
+    with pytest.raises(ValueError, match=f"frame {first}, but only frames {first + 1} to"):
+        summarize("clip.mp4", two_tracks(), frames=100, first=first + 1)
     with pytest.raises(ValueError, match="unit"):
         RunSummary("x", 1, 0, unit="frames")
 

@@ -68,6 +68,8 @@ OPTIONS = {
     "full-search-every": ["--full-search-every", "3", "--no-video"],
     "camera": ["--camera", "{camera}", "--no-video"],
     "lanes": ["--camera", "{camera}", "--lanes"],
+    "lanes-from-footage": ["--lanes", "--format", "csv,lanes", "--no-video"],
+    "report": ["--report", "--no-video"],
     "preset-crf": ["--preset", "veryfast", "--crf", "30"],
     "horizon": ["--horizon", "plan", "--no-video"],
 }

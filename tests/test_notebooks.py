@@ -10,7 +10,8 @@
   and ``VD_MAX_FRAMES`` limiting the project clip. Every figure it is expected to write must
   then exist and be a valid PNG. Skipped when the shared data are absent.
 * Every relative link and image in ``writeup.md`` and ``README.md`` exists; every
-  ``output_images/`` file the writeup links is written by a notebook; every
+  ``output_images/`` file the writeup links is written by a notebook (or, for a browser's
+  screenshot, by the tool ``MADE_BY_TOOLS`` names); every
   ``vehicle_detection.module.name`` the writeup names exists.
 """
 
@@ -65,6 +66,8 @@ EXPECTED = {
         "lanes_final_frame.png",
     ],
 }
+#: Pictures of the writeup that are not figures, and the tool that makes each (a browser's screenshot).
+MADE_BY_TOOLS = {"html_report_test_video.png": "tools/report_screenshot.py"}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Largest committed notebook (figures are the compact PNGs of plots.save_figure).
 MAX_NOTEBOOK_BYTES = 1_500_000
@@ -212,6 +215,9 @@ def test_writeup_images_are_written_by_notebooks():
     assert linked, "the writeup links no output_images/ file"
     for target in linked:
         name = target[len("output_images/") :]
+        if name in MADE_BY_TOOLS:
+            assert f'"{name}"' in (REPO / MADE_BY_TOOLS[name]).read_text(), f"{target} is not written by {MADE_BY_TOOLS[name]}"
+            continue
         assert name in produced and f'"{name}"' in code, f"{target} is not written by any notebook"
 
 

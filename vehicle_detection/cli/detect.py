@@ -2,20 +2,29 @@
 
 Every input, alone or in a batch, is run by :func:`~vehicle_detection.pipeline.inputs.run_input`
 with the same :class:`~vehicle_detection.pipeline.inputs.InputOptions` (frames, camera and
-lanes, tables, video or not, encoding). One input may name its outputs (``--out``, ``--boxes``,
-``--lanes-csv``); a batch (several inputs, globs, a folder of videos, or a batch-only option)
-writes default names and runs :func:`~vehicle_detection.pipeline.batch.detect_many`.
+lanes, tables, video or not, encoding, report). One input may name its outputs (``--out``, ``--boxes``,
+``--lanes-csv``, ``--save-camera``); a batch (several inputs, globs, a folder of videos, or a batch-only
+option) writes default names and runs :func:`~vehicle_detection.pipeline.batch.detect_many`.
+
+Lanes without a camera file with a bird's-eye transform: each input's road plane is estimated from
+its own frames (:meth:`~vehicle_detection.road.survey.Road.for_footage`), printed, and saved with
+``--save-camera``; where the footage shows no lane lines, the input runs without lanes and says so.
+
+Each input ends with one summary line (:meth:`~vehicle_detection.viz.report.RunSummary.line`).
+With ``--json``, standard output is one JSON object (``inputs``: each input's summary, notes and
+road estimate, or its error) and the human lines go to standard error.
 """
 
 from __future__ import annotations
 
 import glob
+import json
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
-from ..errors import InputError, UsageError
+from ..errors import InputError, UsageError, require
 from ..io import Encoding
 from ..pipeline.batch import SCHEDULER_TIMEOUT, detect_many
 from ..pipeline.inputs import (
@@ -35,13 +44,14 @@ _BATCH_ONLY = ("skip_existing", "table", "scheduler", "chunk_frames")
 
 def run(args) -> int:
     batch = _is_batch(args)
-    if batch and (args.out or args.boxes or args.lanes_csv):
-        raise UsageError("--out, --boxes and --lanes-csv name the outputs of one input; in a batch use --out-dir "
-                         "(default names) and --format lanes")
+    if batch and (args.out or args.boxes or args.lanes_csv or args.save_camera):
+        raise UsageError("--out, --boxes, --lanes-csv and --save-camera name the outputs of one input; in a batch use "
+                         "--out-dir (default names) and --format lanes")
     if args.scheduler_timeout is not None and args.scheduler is None:
         raise UsageError("--scheduler-timeout is the wait for a dask scheduler; give --scheduler ADDRESS too")
     options = _options(args)
-    return _detect_many(args, options) if batch else _detect_one(args, options)
+    human = sys.stderr if args.json else sys.stdout
+    return _detect_many(args, options, human) if batch else _detect_one(args, options, human)
 
 
 def _is_batch(args) -> bool:
@@ -84,19 +94,23 @@ def _options(args) -> InputOptions:
             import pyarrow  # noqa: F401  (an optional dependency: only checked for)
         except ImportError:
             raise UsageError('--format parquet and --table need pyarrow: pip install "vehicle-detection[parquet]"') from None
-    lanes = args.lanes or args.lanes_csv is not None or "lanes" in formats
+    lanes = args.lanes or args.lanes_csv is not None or args.save_camera is not None or "lanes" in formats
     camera = load_camera(args.camera)
-    if lanes and (camera is None or camera.birds_eye is None):
-        raise UsageError("--lanes needs --camera CAMERA.json with a bird's-eye transform (made by 'calibrate DIR --straight IMG ...')")
+    if args.save_camera is not None and camera is not None and camera.birds_eye is not None:
+        raise UsageError(f"--save-camera saves a road plane estimated from the footage, but the camera file {args.camera} "
+                         "has one (it wins): there is nothing to estimate")
+    if args.report:
+        require("matplotlib.figure", "report", "--report (the HTML report)")
     inputs = tuple(Path(p) for p in (args.model, args.camera) if p)
     return InputOptions(
         frames=_frames(args), road=Road(camera, lanes=lanes), video=not args.no_video, formats=formats,
         encoding=Encoding(args.preset, args.crf), overwrite=args.overwrite, progress=not args.no_progress, inputs=inputs,
         image_horizon=args.horizon == "auto",
+        report=args.report,
     )
 
 
-def _detect_one(args, options: InputOptions) -> int:
+def _detect_one(args, options: InputOptions, human) -> int:
     if args.out and not options.video:
         raise UsageError("--out names the annotated output, and --no-video writes none; give one of them")
     inp = Path(args.inputs[0])
@@ -106,36 +120,51 @@ def _detect_one(args, options: InputOptions) -> int:
     if kind is None:
         raise InputError(unknown_type(inp))
     outputs = default_outputs(inp, kind, None if args.out_dir is None else Path(args.out_dir), options.formats, video=options.video,
-                              annotated=args.out)
+                              annotated=args.out, report=options.report)
     named = {"csv": args.boxes, "lanes": args.lanes_csv}
     tables = {**outputs.tables, **{fmt: Path(p) for fmt, p in named.items() if p}}
-    outputs = replace(outputs, tables=tables)
+    beside = args.boxes or args.out  # the report goes with the outputs the user named
+    report = outputs.report if outputs.report is None or not beside else Path(beside).parent / outputs.report.name
+    outputs = replace(outputs, annotated=Path(args.out) if args.out else outputs.annotated, tables=tables, report=report,
+                      camera=None if args.save_camera is None else Path(args.save_camera))
     detector = load_detector(args.model, args.horizon, args.full_search_every)
     result = run_input(inp, options, detector=detector, outputs=outputs)
-    print(_summary(result))
-    for line in result.notes:
-        print(line)
+    _print_result(result, human)
+    if args.json:
+        print(json.dumps({"inputs": [_result_dict(result)]}, allow_nan=False))
     return 0
 
 
-def _summary(r: InputResult) -> str:
-    files = [str(o) for o in r.outputs]
-    wrote = files[0] if len(files) == 1 else f"{', '.join(files[:-1])} and {files[-1]}"
-    return f"{r.path}: {r.n_boxes} boxes in {r.n_frames} frames; wrote {wrote} ({r.seconds:.1f} s)"
+def _print_result(r: InputResult, human) -> None:
+    """An input's lines for people: its summary (or error, or skip), then its notes."""
+    if r.error is not None:
+        print(f"vehicle-detection: error: {r.error}", file=sys.stderr, flush=True)
+    elif r.skipped:
+        print(f"{r.path}: skipped, outputs complete", file=human, flush=True)
+    else:
+        for line in (r.summary.line(), *r.notes):
+            print(line, file=human, flush=True)
 
 
-def _detect_many(args, options: InputOptions) -> int:
+def _result_dict(r: InputResult) -> dict:
+    """An input's part of ``--json``: its summary, notes and road estimate; or its error, or its skip."""
+    if r.error is not None:
+        return {"input": str(r.path), "error": r.error, "exit_code": r.exit_code}
+    if r.skipped:
+        return {"input": str(r.path), "skipped": True, "outputs": [str(o) for o in r.outputs]}
+    d = {**r.summary.to_dict(), "notes": list(r.notes)}
+    if r.estimate is not None:
+        d["road_estimate"] = r.estimate.to_dict()
+    return d
+
+
+def _detect_many(args, options: InputOptions, human) -> int:
     t = time.perf_counter()
     if "coco" in options.formats and any(kind == "video" for _, kind, _ in expand_inputs(args.inputs)):
         print("coco: COCO JSON is written for images only; the videos get the other formats", file=sys.stderr)
 
     def report(r: InputResult) -> None:
-        if r.error is not None:
-            print(f"vehicle-detection: error: {r.error}", file=sys.stderr, flush=True)
-        elif r.skipped:
-            print(f"{r.path}: skipped, outputs complete", flush=True)
-        else:
-            print(_summary(r), flush=True)
+        _print_result(r, human)
 
     detector = load_detector(args.model, args.horizon, args.full_search_every)
     results = detect_many(
@@ -145,10 +174,15 @@ def _detect_many(args, options: InputOptions) -> int:
     )
     failed = [r for r in results if not r.ok]
     done = sum(1 for r in results if r.ok and not r.skipped)
+    skipped = sum(r.skipped for r in results)
     frames = sum(r.n_frames for r in results if r.ok and not r.skipped)
     secs = time.perf_counter() - t
-    print(f"{done} done, {sum(r.skipped for r in results)} skipped, {len(failed)} failed; {frames} frames in {secs:.1f} s "
-          f"({frames / secs if secs > 0 else 0:.1f} frames/s)" + (f"; table {args.table}" if args.table else ""))
+    print(f"{done} done, {skipped} skipped, {len(failed)} failed; {frames} frames in {secs:.1f} s "
+          f"({frames / secs if secs > 0 else 0:.1f} frames/s)" + (f"; table {args.table}" if args.table else ""), file=human)
+    if args.json:
+        totals = {"done": done, "skipped": skipped, "failed": len(failed), "frames": frames, "seconds": round(secs, 3),
+                  "table": args.table}
+        print(json.dumps({"inputs": [_result_dict(r) for r in results], **totals}, allow_nan=False))
     if not failed:
         return 0
     return failed[0].exit_code if len(results) == 1 else SOME_FAILED

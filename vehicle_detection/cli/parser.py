@@ -90,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_add_download, _add_train, _add_sweep, _add_calibrate, _add_detect, _add_evaluate, _add_mine_negatives):
+    for add in (_add_download, _add_train, _add_sweep, _add_calibrate, _add_detect, _add_report, _add_evaluate, _add_mine_negatives):
         add(sub)
     return parser
 
@@ -207,10 +207,40 @@ def _add_detect(sub) -> None:
     p.add_argument("--camera", default=None, metavar="CAMERA.json",
                    help="undistort every frame with this camera file (from 'calibrate') before the search; with its "
                    "bird's-eye transform, boxes also get distances (m) and relative speeds (m/s)")
-    p.add_argument("--lanes", action="store_true", help="find and draw the lane, its radius and the car's offset (needs --camera with a bird's-eye transform)")
+    p.add_argument("--lanes", action="store_true",
+                   help="find and draw the lane, its radius and the car's offset; boxes get distances. The road plane "
+                   "(bird's-eye view) is the --camera file's when it has one, else estimated from each input's own frames "
+                   "(printed); an input without visible lane lines runs without lanes, saying so")
     p.add_argument("--lanes-csv", default=None, metavar="L.csv",
                    help="write frame,curvature_m,offset_m per frame of a single input (implies --lanes; a batch: --format lanes)")
+    p.add_argument("--save-camera", default=None, metavar="C.json",
+                   help="save the road plane estimated from the footage of a single input as a camera file, for "
+                   "--camera C.json next time (implies --lanes; written only when a plane is found)")
+    p.add_argument("--report", action="store_true",
+                   help="also write NAME_report.html per input, beside its outputs: track timeline, contact sheet, boxes "
+                   "per frame, distances and lanes (needs vehicle-detection[report])")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object on standard output (each input's summary, notes and road estimate); the "
+                   "human lines go to standard error")
     p.add_argument("--no-progress", action="store_true")
+    _add_common(p)
+
+
+def _add_report(sub) -> None:
+    p = sub.add_parser(
+        "report", help="write the HTML page of a run from its boxes CSV",
+        description="One self-contained HTML page (figures as embedded PNGs, no script, nothing fetched): a track "
+        "timeline, a contact sheet of every track's first, middle and last box (cut from --video), boxes per frame, "
+        "each car's distance (a run with distances) and the lane's radius and offset (--lanes). Needs "
+        "vehicle-detection[report] (matplotlib).",
+    )
+    p.add_argument("boxes", metavar="RUN_CSV", help="the boxes CSV of a detect run (NAME_boxes.csv, or --boxes)")
+    p.add_argument("--video", default=None, metavar="V", help="the video the boxes are of: the contact sheet's pictures")
+    p.add_argument("--lanes", default=None, metavar="L.csv", help="the run's lanes CSV (--lanes-csv, --format lanes)")
+    p.add_argument("--out", default=None, metavar="R.html", help="the page to write (default: NAME_report.html beside RUN_CSV)")
+    p.add_argument("--title", default=None, help="the page's heading (default: the video's or the CSV's name)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing page")
+    p.add_argument("--json", action="store_true", help="print one JSON object naming the page written")
     _add_common(p)
 
 

@@ -52,6 +52,7 @@ from ..io import (
 from ..io.images import list_images
 from ..io.video import probe_video, read_frames
 from ..tracker import Tracker, TrackerState
+from ..viz.report import summarize
 from ._threads import init_worker, set_numba_threads
 from .inputs import InputOptions, InputResult, Outputs, check_input_outputs, default_outputs, expand_inputs, run_input
 from .video import SEARCH_WORKERS
@@ -255,8 +256,9 @@ def _run_chunked(task: _Task, client, chunk_frames: int) -> InputResult:
             return InputResult(task.path, error=_message(task.path, lost), seconds=time.perf_counter() - t, exit_code=lost.exit_code)
         return InputResult(task.path, error=f"{task.path}: internal error: {type(exc).__name__}: {one_line(exc)}",
                            seconds=time.perf_counter() - t, exit_code=1)
-    n_frames = _frames_in(task.path, start, end)
-    return InputResult(task.path, tuple(task.outputs.files(task.kind)), len(table), n_frames=n_frames, seconds=time.perf_counter() - t)
+    n_frames, seconds, files = _frames_in(task.path, start, end), time.perf_counter() - t, tuple(task.outputs.files(task.kind))
+    summary = summarize(task.path, table, frames=n_frames, seconds=seconds, outputs=files, first=start)
+    return InputResult(task.path, files, len(table), n_frames=n_frames, seconds=seconds, summary=summary)
 
 
 def _frames_in(path: Path, start: int, end: int | None) -> int:
@@ -393,8 +395,8 @@ def _check_batch(options: InputOptions, jobs: int, chunk_frames: int | None, tab
         raise UsageError("jobs must be >= 1")
     if chunk_frames is not None and (chunk_frames < 1 or options.video):
         raise UsageError("chunk_frames (--chunk-frames) needs a number >= 1 and no video (--no-video): the encoder needs the whole video in one task")
-    if chunk_frames is not None and (options.road.camera is not None or options.road.lanes):
-        raise UsageError("chunk_frames (--chunk-frames) runs the detector alone: no --camera or --lanes")
+    if chunk_frames is not None and (options.road.camera is not None or options.road.lanes or options.report):
+        raise UsageError("chunk_frames (--chunk-frames) runs the detector alone: no --camera, --lanes or --report")
     if table is not None and Path(table).suffix.lower() != ".parquet":
         raise UsageError(f"{table}: the table of all inputs is a Parquet file (.parquet)")
 
@@ -409,8 +411,9 @@ def _tasks(paths, out_dir, options: InputOptions, detector: Detector, *, progres
         if problem is not None:
             results[k] = InputResult(p, error=problem, exit_code=3)
             continue
-        outputs = default_outputs(p, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video)
-        for o in [outputs.annotated, *outputs.tables.values()]:
+        outputs = default_outputs(p, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video,
+                                  report=options.report)
+        for o in [outputs.annotated, *outputs.tables.values(), outputs.report]:
             if o is None:
                 continue
             key = Path(os.path.abspath(o))

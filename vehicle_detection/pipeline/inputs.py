@@ -2,8 +2,9 @@
 
 An input is a video, an image, or a folder of images (:func:`input_kind`). :func:`run_input`
 runs one with :class:`InputOptions` (frame range, road, tables, video or not, encoding) and
-writes its outputs (:class:`Outputs`: the annotated video, image or folder, and the tables),
-all committed together: a run that fails or is stopped part-way leaves no new file and every
+writes its outputs (:class:`Outputs`: the annotated video, image or folder, the tables, and
+optionally the HTML report and the camera file of a road plane estimated from the footage), all
+committed together: a run that fails or is stopped part-way leaves no new file and every
 earlier output as it was. The command line runs one input with it, and :func:`detect_many`
 (:mod:`vehicle_detection.pipeline.batch`) runs each input of a batch with it, so every option
 works the same in both.
@@ -20,15 +21,17 @@ from pathlib import Path
 
 from ..detections import Detections
 from ..detector import Detector
-from ..errors import InputError, OutputError, UsageError
+from ..errors import InputError, OutputError, UsageError, require
 from ..horizon import TOLERANCE, estimate_horizon
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
 from ..io.video import probe_video
+from ..road.autocamera import RoadEstimate, save_estimate
 from ..road.survey import Road
 from ..tracker import Tracker, TrackerState
 from ..viz.drawing import draw_detections
-from .video import frame_range, process_video
+from ..viz.report import RunSummary, summarize, write_html_report
+from .video import frame_range, run_video
 
 __all__ = [
     "VIDEO_EXTENSIONS",
@@ -78,6 +81,13 @@ class InputOptions:
         frame), when the detector estimates horizons; an image without usable lines is searched
         where the plan says, and a note says so. False: images are searched where the plan says
         (a video's horizon is estimated from its first frames in any case).
+    report : bool
+        Also write the run's HTML report (:func:`~vehicle_detection.viz.report.write_html_report`),
+        ``NAME_report.html`` beside the tables; needs matplotlib (the ``report`` extra).
+
+    With ``road.lanes`` and no road plane (no camera file with a bird's-eye transform), each input
+    gets the plane estimated from its own frames (:meth:`Road.for_footage`), or runs without
+    lanes when they show no lane lines.
     """
 
     frames: tuple[int, int | None] | range | None = None
@@ -89,6 +99,7 @@ class InputOptions:
     progress: bool = False
     inputs: tuple[Path, ...] = ()
     image_horizon: bool = False
+    report: bool = False
 
     def __post_init__(self) -> None:
         formats = tuple(dict.fromkeys(self.formats)) or ("csv",)
@@ -112,21 +123,28 @@ class Outputs:
         The annotated video, image, or folder of images; None: none is written.
     tables : mapping of str to Path
         Format -> file.
+    report : Path or None
+        The HTML report; None: none is written.
+    camera : Path or None
+        The camera file of the road plane estimated from the footage (``detect --save-camera``);
+        None: none is written (nor when nothing is estimated).
     """
 
     annotated: Path | None
     tables: Mapping[str, Path]
+    report: Path | None = None
+    camera: Path | None = None
 
     def files(self, kind: str, images: Sequence[Path] = ()) -> list[Path]:
         """Every file written for an input of ``kind`` (for a folder, one annotated image per
-        file of ``images``), the annotated ones first."""
+        file of ``images``), the annotated ones first, then the tables, the report and the camera file."""
         if self.annotated is None:
             drawn = []
         elif kind == "folder":
             drawn = [self.annotated / f.name for f in images]
         else:
             drawn = [self.annotated]
-        return [*drawn, *self.tables.values()]
+        return [*drawn, *self.tables.values(), *(p for p in (self.report, self.camera) if p is not None)]
 
 
 @dataclass(frozen=True)
@@ -152,12 +170,19 @@ class InputResult:
     exit_code : int
         The CLI exit code of its error (0 when it succeeded).
     notes : tuple of str
-        What else the run found out, one line each: the footage's black bars and overlays and
-        its horizon (videos), each image's count (images).
+        What else the run found out, one line each: the road plane estimated from the footage
+        (or why there is none), the footage's black bars and overlays and its horizon (videos),
+        each image's count (folders of images).
     image : tuple or None
         An image input: ``(size, boxes)``, its ``(H, W)`` as searched and its boxes, for the one
         COCO dataset of a batch's images (:func:`~vehicle_detection.pipeline.batch.detect_many`);
         None for videos and folders.
+    summary : RunSummary or None
+        Frames, vehicles, boxes, speed and outputs (:func:`~vehicle_detection.viz.report.summarize`):
+        ``summary.line()`` is what ``detect`` prints. None when skipped or failed.
+    estimate : RoadEstimate or None
+        The road plane estimated from the footage, or why there is none (lanes without a road
+        plane); None when nothing was estimated.
     """
 
     path: Path
@@ -170,6 +195,8 @@ class InputResult:
     exit_code: int = 0
     notes: tuple[str, ...] = ()
     image: tuple | None = None
+    summary: RunSummary | None = None
+    estimate: RoadEstimate | None = None
 
     @property
     def ok(self) -> bool:
@@ -252,13 +279,15 @@ def default_outputs(
     *,
     video: bool = True,
     annotated: str | os.PathLike | None = None,
+    report: bool = False,
 ) -> Outputs:
     """The outputs of one input under the default names.
 
     Beside the input, or in ``out_dir``: ``NAME_detected.mp4`` / ``NAME_detected.EXT`` /
     ``NAME_detected/`` (None when not ``video``) and the tables ``NAME`` + the suffix of
     :data:`~vehicle_detection.io.formats.FORMATS` (``NAME_boxes.csv``, ...), except the boxes
-    CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``).
+    CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``); with
+    ``report``, ``NAME_report.html``.
 
     ``annotated`` (``--out``) names the annotated output; a run's outputs go together, so the
     tables then go beside it (unless ``out_dir`` is given), not beside the input.
@@ -274,7 +303,7 @@ def default_outputs(
     suffix = {"video": ".mp4", "image": path.suffix}.get(kind, "")
     out = base / f"{stem}_detected{suffix}" if annotated is None else annotated
     tables = {fmt: out / "boxes.csv" if (fmt == "csv" and kind == "folder") else base / f"{stem}{FORMATS[fmt]}" for fmt in formats}
-    return Outputs(out if video else None, tables)
+    return Outputs(out if video else None, tables, base / f"{stem}_report.html" if report else None)
 
 
 def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, overwrite: bool, inputs: Iterable[Path]) -> None:
@@ -298,7 +327,8 @@ def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, 
                 what = _TABLE_NAMES.get(fmt, f"{fmt} table")
                 raise OutputError(f"{out}: the annotated output and the {what} cannot be the same file")
     written = outputs.files(kind, images)
-    for o in written[: len(written) - len(outputs.tables)] if kind != "video" else ():
+    drawn = 0 if out is None else len(images) if kind == "folder" else 1
+    for o in written[:drawn] if kind != "video" else ():
         check_image_output(o)  # e.g. .webp without a WebP encoder
     check_outputs(written, overwrite=overwrite, inputs=inputs)
 
@@ -349,7 +379,8 @@ def run_input(
     if kind is None:
         raise InputError(unknown_type(path))
     if outputs is None:
-        outputs = default_outputs(path, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video)
+        outputs = default_outputs(path, kind, None if out_dir is None else Path(out_dir), options.formats, video=options.video,
+                                  report=options.report)
     start, end = options.frames
     images = list_images(path)[start:end] if kind == "folder" else [path] if kind == "image" else []
     _check_range(path, kind, start, end, images)
@@ -357,14 +388,65 @@ def run_input(
         raise InputError(f"{path}: COCO JSON is written for images and folders of images, not videos (use mot or csv)")
     read = [path, *images, *options.inputs]
     check_input_outputs(kind, outputs, images, overwrite=options.overwrite, inputs=read)
+    if outputs.report is not None:
+        require("matplotlib.figure", "report", "the HTML report")  # before any work
+    road, estimate = options.road, None
+    if road.estimates:  # lanes without a road plane: the plane from the footage, or no lanes
+        road, estimate = road.for_footage(path if kind == "video" else _sample_images(path, images, road), start=start)
+        options = replace(options, road=road)
+    notes = [] if estimate is None else estimate.summary()
+    # Lanes asked for, and no lane lines in the footage: the lanes table says "no lane" in every frame.
+    unmeasured = estimate is not None and not estimate.ok and "lanes" in outputs.tables
+    run_outputs = replace(outputs, tables={k: v for k, v in outputs.tables.items() if k != "lanes"}) if unmeasured else outputs
+    first = start if kind != "image" else 0
     with output_batch():
         if kind == "video":
-            n_boxes, n_frames, notes = _run_video(path, options, detector, outputs, threads)
+            table, n_frames, more, lane_rows = _run_video(path, options, detector, run_outputs, threads)
             image = None
         else:
-            n_boxes, n_frames, notes, image = _run_images(path, kind, images, options, detector, outputs, read)
-    return InputResult(path, tuple(outputs.files(kind, images)), n_boxes, n_frames=n_frames, seconds=time.perf_counter() - t,
-                       notes=tuple(notes), image=image if kind == "image" else None)
+            table, n_frames, more, lane_rows, image = _run_images(path, kind, images, options, detector, run_outputs, read)
+        notes += more
+        if estimate is not None and not estimate.ok:
+            lane_rows = [(i, None, None) for i in range(first, first + n_frames)]
+        if unmeasured:
+            write_tables({"lanes": outputs.tables["lanes"]}, table, name=path.name, lanes=lane_rows, overwrite=options.overwrite,
+                         inputs=read)
+        if outputs.report is not None:
+            write_html_report(outputs.report, table, video=path if kind == "video" else None,
+                              lanes=lane_rows if (road.lanes or estimate is not None) else None, n_frames=first + n_frames,
+                              title=path.name, overwrite=options.overwrite)
+        if outputs.camera is not None and estimate is not None and estimate.ok:
+            save_estimate(outputs.camera, road.plane, estimate, options.road.camera, overwrite=options.overwrite, inputs=read)
+        elif outputs.camera is not None:
+            notes.append(f"{outputs.camera}: not written (no road plane estimated from the footage)")
+            outputs = replace(outputs, camera=None)
+    files = tuple(outputs.files(kind, images))
+    seconds = time.perf_counter() - t
+    summary = summarize(path, table, frames=n_frames, seconds=seconds, outputs=files, unit="frame" if kind == "video" else "image",
+                        first=first)
+    return InputResult(path, files, len(table), n_frames=n_frames, seconds=seconds, notes=tuple(notes), summary=summary,
+                       estimate=estimate, image=image if kind == "image" else None)
+
+
+def _sample_images(path: Path, images: Sequence[Path], road: Road, limit: int = 60) -> list:
+    """Up to ``limit`` of ``images`` (spread evenly), read: what a road plane is estimated from.
+
+    Raises
+    ------
+    InputError
+        Naming the image that is not of the camera's size, or the folder whose images differ in size.
+    """
+    step = max(1, -(-len(images) // limit))
+    frames = []
+    for f in images[::step]:
+        frame = read_image(f)
+        road.check_frame(frame.shape[1], frame.shape[0], str(f))
+        if frames and frame.shape != frames[0].shape:
+            raise InputError(f"{path}: its images are not of one size ({f.name} is {frame.shape[1]}x{frame.shape[0]}, "
+                             f"{images[0].name} {frames[0].shape[1]}x{frames[0].shape[0]}); the road plane is estimated "
+                             "from images of one camera: give --camera, or run each size on its own")
+        frames.append(frame)
+    return frames
 
 
 def _check_range(path: Path, kind: str, start: int, end: int | None, images: list[Path]) -> None:
@@ -381,11 +463,11 @@ def _check_range(path: Path, kind: str, start: int, end: int | None, images: lis
 def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: Outputs, threads: int | None):
     start, end = options.frames
     tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))
-    table = process_video(
+    table, lane_rows = run_video(
         path, outputs.annotated, detector=detector, frames=(start, end), road=options.road, encoding=options.encoding,
         tables=outputs.tables, overwrite=options.overwrite, progress=options.progress, tracker=tracker, threads=threads,
     )
-    return len(table), tracker.state.frame_index - start, _video_notes(tracker, detector)
+    return table, tracker.state.frame_index - start, _video_notes(tracker, detector), lane_rows
 
 
 def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
@@ -422,13 +504,14 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
         if o is not None:
             write_image(o, draw_detections(survey.draw(image, lane), boxes), overwrite=options.overwrite, inputs=read)
         found.append(boxes)
-        notes.append(f"{f}: {len(boxes)} vehicle{'' if len(boxes) == 1 else 's'}" + (f" -> {o}" if o is not None else ""))
+        if kind == "folder":
+            notes.append(f"{f}: {len(boxes)} {'vehicle' if len(boxes) == 1 else 'vehicles'}" + (f" -> {o}" if o is not None else ""))
     table = Detections.concatenate(found) if found else Detections.empty()
     if kind == "folder":
         table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})
     write_tables(outputs.tables, table, name=path.name, images=[(f.name, s) for f, s in zip(images, sizes)], first=first,
                  lanes=lanes, overwrite=options.overwrite, inputs=read)
-    return len(table), len(images), notes, ((sizes[0], table) if len(images) == 1 else None)
+    return table, len(images), notes, lanes, ((sizes[0], table) if len(images) == 1 else None)
 
 
 def _image_horizon(detector: Detector, image, name: Path) -> tuple[Detector, str]:

@@ -29,7 +29,7 @@ from ..road.survey import Road, RoadSurvey
 from ..tracker import Tracker, TrackerState
 from ..viz.drawing import draw_detections
 
-__all__ = ["process_video", "frame_range"]
+__all__ = ["process_video", "run_video", "frame_range"]
 
 #: Frames searched at once when no thread budget is given.
 SEARCH_WORKERS = 2
@@ -173,6 +173,33 @@ def process_video(
         Every reported box, frame by frame (``frame``: 0-based decoded frame index), tracked;
         with ``distance_m`` and ``relative_speed_mps`` when the road plane is known.
     """
+    return run_video(path, output, detector=detector, frames=frames, road=road, encoding=encoding, tables=tables,
+                     overwrite=overwrite, progress=progress, tracker=tracker, threads=threads)[0]
+
+
+def run_video(
+    path: str | os.PathLike,
+    output: str | os.PathLike | None = None,
+    *,
+    detector: Detector | None = None,
+    frames: range | tuple[int | None, int | None] | None = None,
+    road: Road | None = None,
+    encoding: Encoding | None = None,
+    tables: Mapping[str, str | os.PathLike] | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+    tracker: Tracker | None = None,
+    threads: int | None = None,
+) -> tuple[Detections, list[tuple[int, float | None, float | None]]]:
+    """:func:`process_video`, returning the lane of each frame as well.
+
+    Returns
+    -------
+    table : Detections
+        As :func:`process_video`.
+    lane_rows : list of (int, float or None, float or None)
+        ``(frame, radius_m, offset_m)`` of every frame when the road finds lanes, else empty.
+    """
     path, detector, road = Path(path), detector or Detector(), road or Road()
     start, end = frame_range(frames)
     tables = dict(tables or {})
@@ -212,7 +239,7 @@ def process_video(
                 bar.update()
         table = survey.complete(Detections.concatenate(found))
         write_tables(tables, table, name=path.name, lanes=survey.lane_rows, overwrite=overwrite, inputs=[path])
-    return table
+    return table, survey.lane_rows
 
 
 def _check_run(path: Path, output, road: Road, tables: dict, overwrite: bool):

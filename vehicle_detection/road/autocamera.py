@@ -485,6 +485,8 @@ class EstimateSettings:
         The lines land at ``margin`` and ``1 - margin`` of the warped width.
     min_frames, min_share : int, float
         Fewest frames (and share of the frames) that must show both lane lines.
+    min_dash_frames : int
+        Fewest of those whose dashes must give a period (also at least half of ``min_frames``).
     window : int
         The lane lines of a frame are fitted to the paint segments of it and its neighbours in
         the sample, ``window`` frames in all (dashes move along their line, so neighbouring frames
@@ -502,6 +504,7 @@ class EstimateSettings:
     margin: float = 0.25
     min_frames: int = 5
     min_share: float = 0.2
+    min_dash_frames: int = 3
     window: int = 3
     bootstrap: int = 200
     seed: int = 0
@@ -581,7 +584,7 @@ def estimate_birds_eye(
         period = _frame_period(frames[fl.index], view)
         if period is not None:
             per_frame[fl.index] = cfg.dash_period_m / period
-    if len(per_frame) < max(3, needed // 2):
+    if len(per_frame) < max(cfg.min_dash_frames, needed // 2):
         reason = f"no lane dashes seen (a period in {len(per_frame)} of {len(found)} frames): the scale along the road is unknown"
         return None, RoadEstimate(reason, size, n, used, len(per_frame), (float(vx), float(vy)), left, right, view.xm_per_px,
                                   lane_width_m=cfg.lane_width_m, dash_period_m=cfg.dash_period_m)

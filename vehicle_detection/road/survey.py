@@ -1,6 +1,9 @@
 """What a run measures of the road, frame by frame: the lens undone, distances, and the lane.
 
-:class:`Road` is the setting (which camera, whether to find lanes); :meth:`Road.survey` starts
+:class:`Road` is the setting (which camera, whether to find lanes); :meth:`Road.for_footage`
+completes it for one input: lanes asked for without a road plane get the plane estimated from
+the input's own frames (:mod:`vehicle_detection.road.autocamera`), or no lanes when the footage
+shows none; :meth:`Road.survey` starts
 the stateful part for one video (or one image), a :class:`RoadSurvey`, which the pipeline asks
 frame by frame, in order: undistort the frame, find its lane, give the boxes their distances and
 relative speeds, and draw the lane.
@@ -8,13 +11,17 @@ relative speeds, and draw the lane.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..detections import Detections
 from ..errors import InputError
 from ..io.tables import DISTANCE_COLUMNS
+from ..io.video import probe_video
+from .autocamera import EstimateSettings, RoadEstimate, estimate_birds_eye, road_transform
 from .camera import Camera
 from .distance import DistanceTracker
 from .lanes import BirdsEye, Lane, LaneTracker, draw_lane, lane_row
@@ -44,11 +51,21 @@ class Road:
     birds_eye: BirdsEye | None = None
 
     @property
+    def estimates(self) -> bool:
+        """Whether :meth:`for_footage` estimates a road plane: lanes are asked for and none is known."""
+        return self.lanes and self.plane is None
+
+    @property
     def plane(self) -> BirdsEye | None:
         """The road plane: ``birds_eye``, else the camera's, else None."""
         if self.birds_eye is not None:
             return self.birds_eye
         return None if self.camera is None else self.camera.birds_eye
+
+    def check_frame(self, width: int, height: int, what: str) -> None:
+        """Refuse frames of ``width`` x ``height`` that are not the camera's size (:class:`InputError` naming ``what``)."""
+        if self.camera is not None:
+            self.camera.check_size(width, height, what)
 
     def check(self, width: int, height: int, what: str) -> None:
         """Refuse frames of ``width`` x ``height`` that this road cannot measure.
@@ -66,7 +83,55 @@ class Road:
             w, h = plane.image_size
             raise InputError(f"{what} is {width}x{height}, but the bird's-eye transform is for {w}x{h} frames")
         if self.lanes and plane is None:
-            raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=)")
+            raise InputError("lanes need a bird's-eye transform: a camera file made with 'calibrate --straight' (or birds_eye=), "
+                             "or Road.for_footage, which estimates it from the footage")
+
+    def for_footage(self, footage: str | os.PathLike | Sequence[np.ndarray], *, start: int = 0) -> tuple[Road, RoadEstimate | None]:
+        """This road for one input: the road plane estimated from the footage when lanes need one.
+
+        Parameters
+        ----------
+        footage : path-like or sequence of ndarray
+            A video (:func:`~vehicle_detection.road.autocamera.road_transform` samples its first
+            seconds from frame ``start``), or the RGB frames (images) to estimate from, all of
+            one size.
+        start : int
+            First decoded frame of the video to look at.
+
+        Returns
+        -------
+        road : Road
+            Itself when no lanes are asked for or a road plane is known; else with the plane
+            estimated from the footage (frames undistorted with ``camera`` first), or without
+            lanes when the footage shows no lane lines (never a guess).
+        estimate : RoadEstimate or None
+            What the estimate found (``estimate.reason``: why there is no plane), None when
+            nothing was estimated.
+
+        Raises
+        ------
+        InputError
+            If the frames are not of one size, or not of the camera's size.
+        """
+        if not self.estimates:
+            return self, None
+        if isinstance(footage, (str, os.PathLike)):
+            if self.camera is not None:
+                info = probe_video(footage)
+                self.camera.check_size(info.width, info.height, f"{footage}: the video")
+            birds_eye, estimate = road_transform(footage, self.camera, start=start)
+        else:
+            sizes = {f.shape[:2] for f in footage}
+            if self.camera is not None:
+                for h, w in sizes:
+                    self.camera.check_size(w, h, "the image")
+            if len(sizes) > 1:
+                raise InputError(f"the images are of {len(sizes)} sizes; a road plane is estimated from images of one camera "
+                                 "(give --camera, or run each size on its own)")
+            birds_eye, estimate = estimate_birds_eye(footage, self.camera, EstimateSettings(min_frames=1, min_dash_frames=1))
+        if birds_eye is None:
+            return replace(self, lanes=False), estimate
+        return replace(self, birds_eye=birds_eye), estimate
 
     def survey(self, fps: float = 25.0) -> RoadSurvey:
         """The road of one video at ``fps`` frames per second (or of one image), from its first frame."""

@@ -156,6 +156,7 @@ def summarize(
     seconds: float | None = None,
     outputs: Iterable[str | os.PathLike] = (),
     unit: str = "frame",
+    first: int = 0,
 ) -> RunSummary:
     """The summary of one input's run.
 
@@ -173,6 +174,9 @@ def summarize(
     outputs : iterable of path-like
         The files written.
     unit : {"frame", "image"}
+    first : int
+        The first frame processed (``detect --start``): the boxes lie in frames ``first`` to
+        ``first + frames - 1``.
 
     Returns
     -------
@@ -181,7 +185,7 @@ def summarize(
     Raises
     ------
     ValueError
-        If a box lies in a frame at or beyond ``frames``.
+        If a box lies outside the frames processed.
 
     Examples
     --------
@@ -189,8 +193,11 @@ def summarize(
     >>> summarize("clip.mp4", d, frames=25).line()
     'clip.mp4: 25 frames, 1 vehicle, 2 boxes; nothing written'
     """
-    if len(detections) and int(detections.frame.max()) >= frames:
-        raise ValueError(f"a box lies in frame {int(detections.frame.max())}, but only {frames} frames were processed")
+    if len(detections):
+        lo, hi = int(detections.frame.min()), int(detections.frame.max())
+        if lo < first or hi >= first + frames:
+            raise ValueError(f"a box lies in frame {lo if lo < first else hi}, but only frames {first} to {first + frames - 1} "
+                             "were processed")
     tracks = None
     if detections.track_id is not None:
         tracks = len(np.unique(detections.track_id[detections.track_id >= 0]))
