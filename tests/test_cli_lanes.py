@@ -315,3 +315,17 @@ def test_an_existing_report_or_camera_file_is_refused_before_any_work(clips, tmp
     assert code == 5 and out == []
     assert err == [f"vehicle-detection: error: {tmp_path / existing}: output exists; pass --overwrite (overwrite=True) to replace it"]
     assert sorted(p.name for p in tmp_path.iterdir()) == before and (tmp_path / existing).read_text() == "earlier"
+
+
+def test_format_lanes_in_a_batch_without_a_camera_estimates_or_says_no_lane(tmp_path, capsys):
+    """``--format lanes`` asks for lanes as ``--lanes`` does: without a camera file each input's road
+    plane comes from its own frames, and where none is seen its lanes table says "no lane"."""
+    shutil.copy(TEST_IMAGES / "test1.jpg", tmp_path / "a.jpg")  # no lane lines the estimate can use
+    (tmp_path / "d").mkdir()
+    shutil.copy(TEST_IMAGES / "test2.jpg", tmp_path / "d" / "b.jpg")
+    assert main(["detect", str(tmp_path / "a.jpg"), str(tmp_path / "d"), "--format", "lanes", "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert (captured.out + captured.err).count("no lanes: no lane lines seen") == 2
+    for name in ("a_lanes.csv", "d_lanes.csv"):
+        rows = list(csv.reader(open(tmp_path / name)))
+        assert rows[0] == ["frame", "curvature_m", "offset_m"] and len(rows) == 2 and rows[1][1:] == ["", ""]

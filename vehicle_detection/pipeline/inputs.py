@@ -393,7 +393,9 @@ def run_input(
     road, estimate = options.road, None
     if road.estimates:  # lanes without a road plane: the plane from the footage, or no lanes
         road, estimate = road.for_footage(path if kind == "video" else _sample_images(path, images, road), start=start)
-        options = replace(options, road=road)
+        # No plane: no lanes to find (the lanes table, if asked for, says "no lane" in every frame).
+        formats = options.formats if road.lanes else tuple(f for f in options.formats if f != "lanes")
+        options = replace(options, road=road, formats=formats)
     notes = [] if estimate is None else estimate.summary()
     # Lanes asked for, and no lane lines in the footage: the lanes table says "no lane" in every frame.
     unmeasured = estimate is not None and not estimate.ok and "lanes" in outputs.tables
