@@ -187,3 +187,27 @@ def test_labelled_frames_give_vehicle_patches_grouped_by_blocks(tmp_path):
     joined = ds.concatenate(other)
     assert len(joined) == len(ds) + 2 and joined.labels[-2:].tolist() == [0, 0]
     assert not set(joined.groups[-2:].tolist()) & set(ds.groups.tolist())
+
+
+@pytest.mark.parametrize("index", [0, 3])
+def test_search_reads_the_refinement_off_the_features_it_scored_with(default_model, test_frames, index):
+    """The fast path's edge products equal those of the hot windows' own patches' features."""
+    from vehicle_detection.features import extract_features
+    from vehicle_detection.search import _band, _band_patches, _score_band, _working_frame
+
+    for model in (default_model, _with_regressor(default_model, seed=5)):
+        plan, cfg = model.detector_config.plan, model.config
+        work, _ = _working_frame(test_frames[index], plan)
+        n_hot = 0
+        for s in plan.scales:
+            band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
+            margins, products = _score_band(band, model, reuse=False, refine_above=plan.threshold - 1.0)
+            hot = margins > plan.threshold - 1.0
+            assert np.array_equal(~np.isnan(products[:, 0]), hot)
+            n_hot += hot.sum()
+            if not hot.any():
+                continue
+            features = extract_features(_band_patches(band, cfg, hot), cfg).astype(np.float64)
+            want = features @ model.box_regressor.coef.T
+            np.testing.assert_allclose(products[hot], want, rtol=1e-4, atol=1e-5)
+        assert n_hot > 5

@@ -29,7 +29,6 @@ import numpy as np
 
 from . import _jit
 from .classifier import load_default_model
-from .features import extract_features
 from .search import _band, _score_band, _working_frame, search
 
 __all__ = ["compile_search_kernels"]
@@ -46,10 +45,7 @@ _MAIN_KERNELS = (
 
 # Compiled here too, for models that refine their boxes (not replaced in the helper: a blank
 # frame has no hot window to refine).
-_REFINE_KERNELS = (
-    ("features", "_features_serial", "features._features_serial-"),
-    ("refine", "_products", "refine._products-"),
-)
+_REFINE_KERNELS = (("search", "_window_products", "search._window_products-"),)
 
 
 def _module(name: str):
@@ -107,12 +103,8 @@ def _blank_band(model):
 def _compile_main(model) -> None:
     """This process's half: every kernel but the HOG blocks', by the real code path, nothing replaced."""
     band = _blank_band(model)
-    if band is not None:
-        _score_band(band, model, reuse=False, hog_blocks=False)
-    if model.box_regressor is not None:
-        side = model.config.window
-        features = extract_features(np.zeros((1, side, side, 3), np.uint8), model.config, parallel=False)
-        model.box_regressor.offsets(features)
+    if band is not None:  # every window of the blank band counts as hot: the refinement's kernel too
+        _score_band(band, model, reuse=False, hog_blocks=False, refine_above=-np.inf)
 
 
 def compile_search_kernels(model) -> None:

@@ -72,8 +72,15 @@ class BoxRegressor:
     def offsets(self, features: np.ndarray) -> np.ndarray:
         """Predicted edge offsets of feature vectors ``(n, n_features)``: float64 ``(n, 4)``,
         clipped to ``[-MAX_OFFSET, MAX_OFFSET]``."""
-        d = _products(np.ascontiguousarray(features, dtype=np.float32), self._weights) + self.intercept
-        return np.clip(d, -MAX_OFFSET, MAX_OFFSET)
+        return self._offsets(_products(np.ascontiguousarray(features, dtype=np.float32), self._weights))
+
+    def _offsets(self, products: np.ndarray) -> np.ndarray:
+        return np.clip(products + self.intercept, -MAX_OFFSET, MAX_OFFSET)
+
+    def refine_products(self, windows: np.ndarray, products: np.ndarray, frame_shape: tuple[int, ...]) -> np.ndarray:
+        """:meth:`refine` from the products ``features @ coef.T`` ``(n, 4)`` already computed
+        (the search reads them off the features it scored the windows with)."""
+        return apply_offsets(windows, self._offsets(np.asarray(products, np.float64).reshape(-1, 4)), frame_shape)
 
     def refine(self, windows: np.ndarray, features: np.ndarray, frame_shape: tuple[int, ...]) -> np.ndarray:
         """Refined boxes of ``windows`` whose feature vectors are ``features``.

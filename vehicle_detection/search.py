@@ -34,7 +34,7 @@ import numpy as np
 
 from ._jit import njit
 from .detections import Detections
-from .features import FeatureConfig, _cell_squares, _clipped_block, convert_color, extract_features, hog_input, region_hog
+from .features import FeatureConfig, _cell_squares, _clipped_block, _gather_block, convert_color, hog_input, region_hog
 from .io.images import as_rgb_uint8, check_frame_shape
 from .refine import working_frame
 
@@ -538,6 +538,58 @@ def _score_colour(bin_means, spatial_w, f, cell_scores, cpw, ppc, rows, cols, wi
             out[wr, wc] += s
 
 
+@njit(nogil=True, fastmath=True)
+def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_w, ppc, cpw, rows, cols, out):
+    """Linear maps of the feature vectors of chosen windows, read off the band's features.
+
+    The feature vector of the window whose top-left cell is ``(rows[i], cols[i])`` is the one
+    :func:`~vehicle_detection.features.extract_features` gives its patch: its blocks are
+    gathered from the cell variants with the window's border classes, its spatial bins are
+    ``bin_means`` and its histograms are counted on ``conv``. ``out[i, k]`` (n, K) gets its dot
+    products with ``hog_w[k]`` (K, C, nbw, nbw, bs), ``spatial_w[k]`` (K, size, size * 3) and
+    ``hist_w[k]`` (K, 3, bins).
+    """
+    n_maps, n_ch, nbw, bs = hog_w.shape[0], hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
+    size, bins = spatial_w.shape[1], hist_w.shape[2]
+    run = size * 3
+    means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
+    block = np.empty(bs, np.float64)
+    counts = np.empty((3, max(bins, 1)), np.float64)
+    side = cpw * ppc
+    for i in range(rows.shape[0]):
+        r0, c0 = rows[i], cols[i]
+        for ch in range(n_ch):
+            for a in range(nbw):
+                for b in range(nbw):
+                    _gather_block(variants[ch], r0 + a, c0 + b, cpb, _border_class(a, nbw), _border_class(b, nbw), block)
+                    for k in range(n_maps):
+                        w = hog_w[k, ch, a, b]
+                        t = 0.0
+                        for j in range(bs):
+                            t += block[j] * w[j]
+                        out[i, k] += t
+        if size:
+            by0, x0 = r0 * ppc // f, (c0 * ppc // f) * 3
+            for k in range(n_maps):
+                t = 0.0
+                for by in range(size):
+                    for j in range(run):
+                        t += means[by0 + by, x0 + j] * spatial_w[k, by, j]
+                out[i, k] += t
+        if bins:
+            counts[:] = 0.0
+            for y in range(r0 * ppc, r0 * ppc + side):
+                for x in range(c0 * ppc, c0 * ppc + side):
+                    for ch in range(3):
+                        counts[ch, (np.int32(conv[y, x, ch]) * bins) // 256] += 1.0
+            for k in range(n_maps):
+                t = 0.0
+                for ch in range(3):
+                    for j in range(bins):
+                        t += counts[ch, j] * hist_w[k, ch, j]
+                out[i, k] += t
+
+
 _BUFFERS = threading.local()
 
 
@@ -579,6 +631,16 @@ class _KernelWeights:
         nbw = cfg.blocks_per_window
         # float32 like the blocks: half the memory traffic of float64
         self.hog = np.ascontiguousarray(w[lay["hog"]].reshape(len(cfg.hog_channels), nbw, nbw, cfg.block_size), np.float32)
+        # The box refinement's four edge maps, in the same layouts (float64: few windows use them).
+        reg = model.box_regressor
+        self.refine = None
+        if reg is not None:
+            k, size, bins = reg.coef, cfg.spatial_size, cfg.hist_bins
+            self.refine = (
+                np.ascontiguousarray(k[:, lay["hog"]].reshape(4, len(cfg.hog_channels), nbw, nbw, cfg.block_size)),
+                np.ascontiguousarray(k[:, lay["spatial"]].reshape(4, size, size * 3)),
+                np.ascontiguousarray(k[:, lay["hist"]].reshape(4, 3, bins)),
+            )
 
 
 # Models are immutable, so their kernel weights are computed once per model and dropped with it.
@@ -592,11 +654,18 @@ def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
     return kw
 
 
-def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True) -> np.ndarray:
-    """Margins of every window of ``band``; ``reuse``: work arrays kept for the next frame (whole bands).
+def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True,
+                refine_above: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Margins of every window of ``band``, and the box refinement's products of the hot ones.
 
-    ``hog_blocks=False`` leaves out the HOG blocks' part of the margins (for the warm-up, which
-    compiles that kernel in a helper process meanwhile).
+    Returns ``(margins, products)``: margins flat ``(n_windows,)``; with ``refine_above`` and a
+    model that refines its boxes, ``products`` ``(n_windows, 4)`` holds the four edge maps
+    (:class:`~vehicle_detection.refine.BoxRegressor`, before its intercept) of every window
+    whose margin exceeds it, read off the band's features, and NaN elsewhere; else None.
+
+    ``reuse``: work arrays kept for the next frame (whole bands). ``hog_blocks=False`` leaves out
+    the HOG blocks' part of the margins (for the warm-up, which compiles that kernel in a helper
+    process meanwhile).
     """
     buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
     cfg = model.config
@@ -613,15 +682,26 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
     if hog_blocks:
         ss = buffer("cell_squares", (3, 3, n_cr, n_cc))
         _score_hog(variants, cpb, folded.hog, band.rows, band.cols, ss, out)
+    f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
+    bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
     if cfg.spatial_size or cfg.hist_bins:
-        f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
-        bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
         cell_scores = buffer("cell_scores", (n_cr, n_cc))
         _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
         _score_colour(bin_means, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
                       bool(cfg.spatial_size), bool(cfg.hist_bins), out)
     out += folded.bias
-    return out.ravel()
+    margins = out.ravel()
+    if refine_above is None or folded.refine is None:
+        return margins, None
+    products = np.full((len(margins), 4), np.nan)
+    hot = np.flatnonzero(margins > refine_above)
+    if len(hot):
+        rows, cols = band.rows[hot // len(band.cols)], band.cols[hot % len(band.cols)]
+        found = np.zeros((len(hot), 4))
+        _window_products(variants, cpb, folded.refine[0], bin_means, folded.refine[1], f, conv, folded.refine[2],
+                         ppc, cfg.cells_per_window, rows, cols, found)
+        products[hot] = found
+    return margins, products
 
 
 def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_width: int, around: np.ndarray) -> np.ndarray:
@@ -649,11 +729,12 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
     return mask
 
 
-def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -> np.ndarray:
-    """Margins of the band's windows where ``mask`` holds, flat like :func:`_score_band`.
+def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray,
+                      refine_above: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`_score_band` of the band's windows where ``mask`` holds, flat like it.
 
-    The others are -inf, or their margins where a crop or the whole band scored them anyway:
-    callers keep the windows of ``mask`` only.
+    The other margins are -inf, or their margins where a crop or the whole band scored them
+    anyway: callers keep the windows of ``mask`` only.
 
     Windows see only their own pixels (the HOG gradient is zero on a window's border), so each
     run of wanted columns is scored on a crop of the band holding just its windows, with the
@@ -662,11 +743,12 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -
     cfg = model.config
     ppc, side = cfg.pixels_per_cell, cfg.window
     out = np.full(mask.shape, -np.inf)
+    products = None if refine_above is None or model.box_regressor is None else np.full(mask.shape + (4,), np.nan)
     wanted = mask.any(axis=0)
     if not wanted.any():
-        return out.ravel()
+        return out.ravel(), None if products is None else products.reshape(-1, 4)
     if wanted.all() and mask.any(axis=1).all():
-        return _score_band(band, model)
+        return _score_band(band, model, refine_above=refine_above)
     edges = np.flatnonzero(np.diff(np.r_[0, wanted.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):  # columns a..b-1
         rows_any = np.flatnonzero(mask[:, a:b].any(axis=1))
@@ -675,8 +757,11 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray) -
         image = band.image[top : band.rows[r1 - 1] * ppc + side, left : band.cols[b - 1] * ppc + side]
         sub = _Band(np.ascontiguousarray(image), 0, 0, band.sx, band.sy,
                     band.rows[r0:r1] - band.rows[r0], band.cols[a:b] - band.cols[a])
-        out[r0:r1, a:b] = _score_band(sub, model, reuse=False).reshape(r1 - r0, b - a)  # shapes vary: not kept
-    return out.ravel()
+        margins, found = _score_band(sub, model, reuse=False, refine_above=refine_above)  # shapes vary: not kept
+        out[r0:r1, a:b] = margins.reshape(r1 - r0, b - a)
+        if products is not None:
+            products[r0:r1, a:b] = found.reshape(r1 - r0, b - a, 4)
+    return out.ravel(), None if products is None else products.reshape(-1, 4)
 
 
 def search(
@@ -717,27 +802,27 @@ def search(
     if around is not None:
         around = np.asarray(around, np.float64).reshape(-1, 4) * f
     refine = model.box_regressor is not None and not all_windows
-    parts, windows, patches = [], [], []
+    above = plan.threshold if refine else None
+    parts, windows, products = [], [], []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
         if around is None:
-            scores = _score_band(band, model)
+            scores, found = _score_band(band, model, refine_above=above)
             keep = slice(None) if all_windows else scores > plan.threshold
         else:
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
-            scores = _score_band_where(band, model, mask)
+            scores, found = _score_band_where(band, model, mask, refine_above=above)
             keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
         if refine:
             windows.append(_band_windows(band, cfg, f)[keep])
-            patches.append(_band_patches(band, cfg, keep))
+            products.append(found[keep])
     found = Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
-    if refine:  # all bands at once: one feature pass, one product
+    if refine:
         boxes = np.zeros((0, 4), np.int64)
         if len(found):
-            features = extract_features(np.concatenate(patches), cfg, parallel=False)  # a thread per core already
-            boxes = model.box_regressor.refine(np.concatenate(windows), features, frame.shape)
+            boxes = model.box_regressor.refine_products(np.concatenate(windows), np.concatenate(products), frame.shape)
         found = found.replace(data={**found.data, "box": boxes})
     return found
