@@ -223,3 +223,69 @@ def test_integer_scales_are_resized_by_whole_pixels():
             if scale == int(scale):
                 assert band.sx == scale and padded % int(scale) == 0
             assert band.x0 == -pad  # the left edge keeps the overhang asked for
+
+
+def test_plans_saved_before_the_two_stage_search_score_every_window():
+    plan = SearchPlan()
+    assert plan.coarse_margin is not None
+    old = {k: v for k, v in plan.to_dict().items() if k != "coarse_margin"}
+    assert SearchPlan.from_dict(old).coarse_margin is None
+    assert SearchPlan.from_dict(SearchPlan(coarse_margin=None).to_dict()).coarse_margin is None
+    for bad in (-0.1, float("nan"), "1", True):
+        with pytest.raises(ValueError, match="coarse_margin"):
+            SearchPlan(coarse_margin=bad)
+
+
+def test_two_stage_search_finds_every_hit_of_the_full_search(default_model, test_frames):
+    """On shipped frames, the cascade reports the same windows, margins and refined boxes."""
+    from dataclasses import replace
+
+    plan = default_model.detector_config.plan
+    hits = 0
+    for frame in test_frames:
+        full = search(frame, default_model, replace(plan, coarse_margin=None))
+        fast = search(frame, default_model, replace(plan, coarse_margin=1.5))
+        assert np.array_equal(fast.xyxy, full.xyxy)
+        np.testing.assert_allclose(fast.score, full.score, rtol=0, atol=1e-9)
+        assert np.array_equal(fast.data["box"], full.data["box"])
+        assert np.array_equal(fast.data["scale_index"], full.data["scale_index"])
+        hits += len(full)
+    assert hits > 50
+
+
+def test_two_stage_search_scores_a_quarter_and_the_neighbours_exactly(default_model, test_frames):
+    from vehicle_detection.search import _band, _score_band, _working_frame
+
+    plan, cfg = default_model.detector_config.plan, default_model.config
+    work, _ = _working_frame(test_frames[0], plan)
+    scored = total = 0
+    for s in plan.scales:
+        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
+        full, _ = _score_band(band, default_model, reuse=False)
+        two, _ = _score_band(band, default_model, reuse=False, cascade=(plan.threshold, 1.0))
+        grid = two.reshape(len(band.rows), len(band.cols))
+        assert np.isfinite(grid[::2, ::2]).all()  # the first stage: every other window both ways
+        done = np.isfinite(two)
+        np.testing.assert_allclose(two[done], full[done], rtol=0, atol=1e-9)
+        # every window next to a first-stage window within the margin is scored, and no other
+        near = np.zeros(grid.shape, bool)
+        near[::2, ::2] = grid[::2, ::2] > plan.threshold - 1.0
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                shifted = np.zeros_like(near)
+                shifted[max(dr, 0) : near.shape[0] + min(dr, 0), max(dc, 0) : near.shape[1] + min(dc, 0)] = \
+                    near[max(-dr, 0) : near.shape[0] - max(dr, 0), max(-dc, 0) : near.shape[1] - max(dc, 0)]
+                assert done.reshape(grid.shape)[shifted].all()
+        first = np.zeros(grid.shape, bool)
+        first[::2, ::2] = True
+        assert not (done.reshape(grid.shape) & ~first & ~_dilated(near)).any()
+        scored, total = scored + done.sum(), total + done.size
+    assert scored < 0.5 * total
+
+
+def _dilated(a):
+    out = a.copy()
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            out |= np.roll(np.roll(np.pad(a, 1), dr, 0), dc, 1)[1:-1, 1:-1]
+    return out

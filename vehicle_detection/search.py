@@ -144,6 +144,14 @@ class SearchPlan:
         In pixels at the reference height.
     track_margin : float
         Fraction of a track box's size added on each side.
+    coarse_margin : float or None
+        A two-stage search. None scores every window. A number first scores every other window
+        of each band in both directions (a quarter of them), then only the windows next to a
+        first-stage window whose margin exceeds ``threshold - coarse_margin``. Every window
+        scored gets its exact margin, so hits are found as the full search finds them unless
+        a hit's four coarse neighbours all score more than ``coarse_margin`` below the
+        threshold. Windows not scored are reported with a margin of ``-inf`` by
+        ``search(all_windows=True)``, which scores every window whatever this says.
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
@@ -157,6 +165,7 @@ class SearchPlan:
     edge_width: int = 160
     horizon_height: int = 96
     track_margin: float = 0.5
+    coarse_margin: float | None = 1.5
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
@@ -165,6 +174,11 @@ class SearchPlan:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "full_search_every" else 0):
                 raise ValueError(f"{name} must be an integer >= {1 if name == 'full_search_every' else 0}, got {v!r}")
             object.__setattr__(self, name, int(v))
+        if self.coarse_margin is not None:
+            c = self.coarse_margin
+            if isinstance(c, bool) or not isinstance(c, (int, float, np.floating)) or not 0.0 <= c <= 100.0:
+                raise ValueError(f"coarse_margin must be None or a number in [0, 100], got {c!r}")
+            object.__setattr__(self, "coarse_margin", float(c))
         if not 0.0 <= self.track_margin <= 10.0:
             raise ValueError(f"track_margin must be in [0, 10], got {self.track_margin}")
         if not self.scales:
@@ -204,6 +218,7 @@ class SearchPlan:
             "edge_width": self.edge_width,
             "horizon_height": self.horizon_height,
             "track_margin": self.track_margin,
+            "coarse_margin": self.coarse_margin,
         }
 
     @classmethod
@@ -212,14 +227,15 @@ class SearchPlan:
 
         Plans saved before the search schedule existed (without its four fields) load with the
         defaults: every frame searched whole; plans without ``reference_horizon``, with the
-        project camera's.
+        project camera's; plans without ``coarse_margin`` score every window, as they did.
         """
         try:
             required = {"scales", "threshold", "reference_height", "overhang", "horizon"}
-            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon", "overhang_min_scale"}
+            optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon",
+                        "overhang_min_scale", "coarse_margin"}
             if not required <= set(d) <= required | optional:
                 raise ValueError(f"fields {sorted(d)}")
-            schedule = {"overhang_min_scale": 0.0, **{k: d[k] for k in optional & set(d)}}
+            schedule = {"overhang_min_scale": 0.0, "coarse_margin": None, **{k: d[k] for k in optional & set(d)}}
             for name in ("track_margin", "reference_horizon", "overhang_min_scale"):
                 if name in schedule:
                     schedule[name] = float(schedule[name])
@@ -433,7 +449,8 @@ def _score_hog(variants, cpb, weights, rows, cols, ss, out):
 
     variants (C, 3, 3, n_cr, n_cc, nb) from :func:`~vehicle_detection.features.region_hog`;
     weights (C, nbw, nbw, bs) float32; rows, cols: the windows' top-left cells, increasing;
-    ss (3, 3, n_cr, n_cc) float64: work space.
+    ss (C, 3, 3, n_cr, n_cc) float64: the cells' sums of squares
+    (:func:`~vehicle_detection.features._cell_squares` of each channel's variants).
 
     Block by block: each block position is normalised once for each border class some window
     sees it in (inside, or on a window's top, bottom, left or right border, or a corner), and
@@ -449,7 +466,7 @@ def _score_hog(variants, cpb, weights, rows, cols, ss, out):
     block = np.empty(bs, np.float32)
     for ch in range(n_ch):
         var = variants[ch]
-        _cell_squares(var, ss)
+        sq = ss[ch]
         for r in range(n_br):
             if row_hi[r] == row_lo[r]:
                 continue
@@ -462,7 +479,7 @@ def _score_hog(variants, cpb, weights, rows, cols, ss, out):
                     for hclass in range(3):
                         if not col_seen[c, hclass]:
                             continue
-                        scale = _clipped_block(var, ss, r, c, cpb, vclass, hclass, block)
+                        scale = _clipped_block(var, sq, r, c, cpb, vclass, hclass, block)
                         for wr in range(row_lo[r], row_hi[r]):
                             i = r - rows[wr]
                             if _border_class(i, nbw) != vclass:
@@ -539,7 +556,8 @@ def _score_colour(bin_means, spatial_w, f, cell_scores, cpw, ppc, rows, cols, wi
 
 
 @njit(nogil=True, fastmath=True)
-def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_w, ppc, cpw, rows, cols, out):
+def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_lut, ppc, cpw, rows, cols,
+                     cell_maps, done, out):
     """Linear maps of the feature vectors of chosen windows, read off the band's features.
 
     The feature vector of the window whose top-left cell is ``(rows[i], cols[i])`` is the one
@@ -547,21 +565,23 @@ def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_w
     gathered from the cell variants with the window's border classes, its spatial bins are
     ``bin_means`` and its histograms are counted on ``conv``. ``out[i, k]`` (n, K) gets its dot
     products with ``hog_w[k]`` (K, C, nbw, nbw, bs), ``spatial_w[k]`` (K, size, size * 3) and
-    ``hist_w[k]`` (K, 3, bins).
+    the histogram weights ``hist_lut[k]`` (K, 3, 256: the weight of each 8-bit value's bin).
+    The histogram part is summed over the window's cells: ``cell_maps`` (n_cr, n_cc, K) holds
+    each cell's share once ``done`` (n_cr, n_cc) says so (computed here when first needed).
     """
     n_maps, n_ch, nbw, bs = hog_w.shape[0], hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
-    size, bins = spatial_w.shape[1], hist_w.shape[2]
+    size = spatial_w.shape[1]
     run = size * 3
     means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
     block = np.empty(bs, np.float64)
-    counts = np.empty((3, max(bins, 1)), np.float64)
-    side = cpw * ppc
+    with_hist = hist_lut.shape[0] == n_maps
     for i in range(rows.shape[0]):
         r0, c0 = rows[i], cols[i]
         for ch in range(n_ch):
+            var = variants[ch]
             for a in range(nbw):
                 for b in range(nbw):
-                    _gather_block(variants[ch], r0 + a, c0 + b, cpb, _border_class(a, nbw), _border_class(b, nbw), block)
+                    _gather_block(var, r0 + a, c0 + b, cpb, _border_class(a, nbw), _border_class(b, nbw), block)
                     for k in range(n_maps):
                         w = hog_w[k, ch, a, b]
                         t = 0.0
@@ -576,18 +596,19 @@ def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_w
                     for j in range(run):
                         t += means[by0 + by, x0 + j] * spatial_w[k, by, j]
                 out[i, k] += t
-        if bins:
-            counts[:] = 0.0
-            for y in range(r0 * ppc, r0 * ppc + side):
-                for x in range(c0 * ppc, c0 * ppc + side):
-                    for ch in range(3):
-                        counts[ch, (np.int32(conv[y, x, ch]) * bins) // 256] += 1.0
-            for k in range(n_maps):
-                t = 0.0
-                for ch in range(3):
-                    for j in range(bins):
-                        t += counts[ch, j] * hist_w[k, ch, j]
-                out[i, k] += t
+        if with_hist:
+            for cy in range(r0, r0 + cpw):
+                for cx in range(c0, c0 + cpw):
+                    if not done[cy, cx]:
+                        for k in range(n_maps):
+                            t = 0.0
+                            for y in range(cy * ppc, (cy + 1) * ppc):
+                                for x in range(cx * ppc, (cx + 1) * ppc):
+                                    t += hist_lut[k, 0, conv[y, x, 0]] + hist_lut[k, 1, conv[y, x, 1]] + hist_lut[k, 2, conv[y, x, 2]]
+                            cell_maps[cy, cx, k] = t
+                        done[cy, cx] = True
+                    for k in range(n_maps):
+                        out[i, k] += cell_maps[cy, cx, k]
 
 
 _BUFFERS = threading.local()
@@ -617,6 +638,12 @@ def _buffer(name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
     return arr
 
 
+def _hist_lut(weights: np.ndarray) -> np.ndarray:
+    """Histogram weights ``(..., bins)`` as the weight of each 8-bit value's bin ``(..., 256)``."""
+    bins = weights.shape[-1]
+    return np.ascontiguousarray(weights[..., (np.arange(256) * bins) // 256])
+
+
 class _KernelWeights:
     """A model's folded weights split by feature part, in the layouts the kernels read."""
 
@@ -626,8 +653,7 @@ class _KernelWeights:
         self.bias = model.bias
         self.spatial = w[lay["spatial"]].reshape(cfg.spatial_size, cfg.spatial_size, 3) if cfg.spatial_size else np.zeros((0, 0, 3))
         # Weight of each 8-bit value's histogram bin, per channel: (3, 256).
-        hist = w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else np.zeros((3, 1))
-        self.hist_lut = np.ascontiguousarray(hist[:, (np.arange(256) * max(cfg.hist_bins, 1)) // 256])
+        self.hist_lut = _hist_lut(w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else np.zeros((3, 1)))
         nbw = cfg.blocks_per_window
         # float32 like the blocks: half the memory traffic of float64
         self.hog = np.ascontiguousarray(w[lay["hog"]].reshape(len(cfg.hog_channels), nbw, nbw, cfg.block_size), np.float32)
@@ -639,7 +665,7 @@ class _KernelWeights:
             self.refine = (
                 np.ascontiguousarray(k[:, lay["hog"]].reshape(4, len(cfg.hog_channels), nbw, nbw, cfg.block_size)),
                 np.ascontiguousarray(k[:, lay["spatial"]].reshape(4, size, size * 3)),
-                np.ascontiguousarray(k[:, lay["hist"]].reshape(4, 3, bins)),
+                _hist_lut(k[:, lay["hist"]].reshape(4, 3, bins)) if bins else np.zeros((0, 3, 256)),
             )
 
 
@@ -654,15 +680,29 @@ def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
     return kw
 
 
+def _next_to(seeds: np.ndarray) -> np.ndarray:
+    """Cells of a boolean grid next to (or on) a True one: a 3x3 dilation."""
+    out = seeds.copy()
+    out[1:] |= seeds[:-1]
+    out[:-1] |= seeds[1:]
+    rows = out.copy()
+    out[:, 1:] |= rows[:, :-1]
+    out[:, :-1] |= rows[:, 1:]
+    return out
+
+
 def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True,
-                refine_above: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Margins of every window of ``band``, and the box refinement's products of the hot ones.
+                refine_above: float | None = None,
+                cascade: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Margins of the windows of ``band``, and the box refinement's products of the hot ones.
 
     Returns ``(margins, products)``: margins flat ``(n_windows,)``; with ``refine_above`` and a
     model that refines its boxes, ``products`` ``(n_windows, 4)`` holds the four edge maps
     (:class:`~vehicle_detection.refine.BoxRegressor`, before its intercept) of every window
     whose margin exceeds it, read off the band's features, and NaN elsewhere; else None.
 
+    ``cascade=(threshold, coarse_margin)``: the two-stage search of
+    :attr:`SearchPlan.coarse_margin` (windows not scored get ``-inf``); None scores every window.
     ``reuse``: work arrays kept for the next frame (whole bands). ``hog_blocks=False`` leaves out
     the HOG blocks' part of the margins (for the warm-up, which compiles that kernel in a helper
     process meanwhile).
@@ -671,66 +711,68 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
     cfg = model.config
     folded = _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
-    ppc, cpb = cfg.pixels_per_cell, cfg.cells_per_block
+    ppc, cpb, cpw = cfg.pixels_per_cell, cfg.cells_per_block, cfg.cells_per_window
     hog_pixels = hog_input(conv, cfg)
     n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
     # Cells are summed in float64 and stored in float32: half the memory traffic; margins stay
     # within 1e-6 of the plain path's (float64 throughout).
     variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations), np.float32)
     region_hog(hog_pixels, cfg, out=variants)
-    out = np.zeros((len(band.rows), len(band.cols)))
-    if hog_blocks:
-        ss = buffer("cell_squares", (3, 3, n_cr, n_cc))
-        _score_hog(variants, cpb, folded.hog, band.rows, band.cols, ss, out)
     f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
     bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
-    if cfg.spatial_size or cfg.hist_bins:
+    two_stage = cascade is not None and hog_blocks
+    step = 2 if two_stage else 1
+    rows, cols = band.rows[::step], band.cols[::step]
+    out = np.zeros((len(rows), len(cols)))
+    if hog_blocks:
+        ss = buffer("cell_squares", (len(cfg.hog_channels), 3, 3, n_cr, n_cc))
+        for ch in range(len(cfg.hog_channels)):
+            _cell_squares(variants[ch], ss[ch])
+        _score_hog(variants, cpb, folded.hog, rows, cols, ss, out)
+    colour = bool(cfg.spatial_size or cfg.hist_bins)
+    if colour:
         cell_scores = buffer("cell_scores", (n_cr, n_cc))
         _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
-        _score_colour(bin_means, folded.spatial, f, cell_scores, cfg.cells_per_window, ppc, band.rows, band.cols,
+        _score_colour(bin_means, folded.spatial, f, cell_scores, cpw, ppc, rows, cols,
                       bool(cfg.spatial_size), bool(cfg.hist_bins), out)
     out += folded.bias
-    margins = out.ravel()
+    if two_stage:
+        # The second stage: the windows next to a first-stage window within the margin, scored
+        # by the same kernels a band row at a time (the cell sums of squares computed once).
+        threshold, margin = cascade
+        first = np.zeros((len(band.rows), len(band.cols)), bool)
+        first[::2, ::2] = True
+        seeds = np.zeros_like(first)
+        seeds[::2, ::2] = out > threshold - margin
+        second = _next_to(seeds) & ~first
+        margins = np.full(first.shape, -np.inf)
+        margins[::2, ::2] = out
+        for i in np.flatnonzero(second.any(axis=1)):
+            at = np.flatnonzero(second[i])
+            row = np.zeros((1, len(at)))
+            _score_hog(variants, cpb, folded.hog, band.rows[i : i + 1], band.cols[at], ss, row)
+            if colour:
+                _score_colour(bin_means, folded.spatial, f, cell_scores, cpw, ppc, band.rows[i : i + 1], band.cols[at],
+                              bool(cfg.spatial_size), bool(cfg.hist_bins), row)
+            margins[i, at] = row[0] + folded.bias
+        margins = margins.ravel()
+    else:
+        margins = out.ravel()
     if refine_above is None or folded.refine is None:
         return margins, None
-    products = np.full((len(margins), 4), np.nan)
+    found = np.full((len(margins), 4), np.nan)
     hot = np.flatnonzero(margins > refine_above)
     if len(hot):
-        rows, cols = band.rows[hot // len(band.cols)], band.cols[hot % len(band.cols)]
-        found = np.zeros((len(hot), 4))
-        _window_products(variants, cpb, folded.refine[0], bin_means, folded.refine[1], f, conv, folded.refine[2],
-                         ppc, cfg.cells_per_window, rows, cols, found)
-        products[hot] = found
-    return margins, products
+        maps = np.zeros((len(hot), 4))
+        _window_products(variants, cpb, folded.refine[0], bin_means, folded.refine[1], f, conv, folded.refine[2], ppc, cpw,
+                         band.rows[hot // len(band.cols)], band.cols[hot % len(band.cols)],
+                         np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), maps)
+        found[hot] = maps
+    return margins, found
 
 
-def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_width: int, around: np.ndarray) -> np.ndarray:
-    """Which windows of ``band`` a between-frames search scores (see :class:`SearchPlan`), ``(rows, cols)`` bool.
-
-    ``around``: live track boxes in working-frame pixels, ``(n, 4)`` float.
-    """
-    ppc, side = config.pixels_per_cell, config.window
-    x1 = band.x0 + band.cols * ppc * band.sx  # (n_cols,) unclipped, working-frame pixels
-    x2 = x1 + side * band.sx
-    y1 = band.y0 + band.rows * ppc * band.sy  # (n_rows,)
-    y2 = y1 + side * band.sy
-    edge = ((x2 <= plan.edge_width) | (x1 >= work_width - plan.edge_width)) & (plan.edge_width > 0)
-    top = min(s.y_start for s in plan.scales) + plan.y_shift
-    horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
-    mask = edge[None, :] | horizon[:, None]
-    if len(around):
-        a = around
-        w, h = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
-        m = plan.track_margin
-        gx1, gy1, gx2, gy2 = a[:, 0] - m * w, a[:, 1] - m * h, a[:, 2] + m * w, a[:, 3] + m * h
-        cols_hit = (x1[None, :] < gx2[:, None]) & (x2[None, :] > gx1[:, None])  # (n, n_cols)
-        rows_hit = (y1[None, :] < gy2[:, None]) & (y2[None, :] > gy1[:, None])  # (n, n_rows)
-        mask |= (rows_hit[:, :, None] & cols_hit[:, None, :]).any(axis=0)
-    return mask
-
-
-def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray,
-                      refine_above: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray, refine_above: float | None = None,
+                      cascade: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`_score_band` of the band's windows where ``mask`` holds, flat like it.
 
     The other margins are -inf, or their margins where a crop or the whole band scored them
@@ -748,7 +790,7 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray,
     if not wanted.any():
         return out.ravel(), None if products is None else products.reshape(-1, 4)
     if wanted.all() and mask.any(axis=1).all():
-        return _score_band(band, model, refine_above=refine_above)
+        return _score_band(band, model, refine_above=refine_above, cascade=cascade)
     edges = np.flatnonzero(np.diff(np.r_[0, wanted.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):  # columns a..b-1
         rows_any = np.flatnonzero(mask[:, a:b].any(axis=1))
@@ -757,7 +799,7 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray,
         image = band.image[top : band.rows[r1 - 1] * ppc + side, left : band.cols[b - 1] * ppc + side]
         sub = _Band(np.ascontiguousarray(image), 0, 0, band.sx, band.sy,
                     band.rows[r0:r1] - band.rows[r0], band.cols[a:b] - band.cols[a])
-        margins, found = _score_band(sub, model, reuse=False, refine_above=refine_above)  # shapes vary: not kept
+        margins, found = _score_band(sub, model, reuse=False, refine_above=refine_above, cascade=cascade)  # shapes vary
         out[r0:r1, a:b] = margins.reshape(r1 - r0, b - a)
         if products is not None:
             products[r0:r1, a:b] = found.reshape(r1 - r0, b - a, 4)
@@ -803,17 +845,18 @@ def search(
         around = np.asarray(around, np.float64).reshape(-1, 4) * f
     refine = model.box_regressor is not None and not all_windows
     above = plan.threshold if refine else None
+    cascade = None if all_windows or plan.coarse_margin is None else (plan.threshold, plan.coarse_margin)
     parts, windows, products = [], [], []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
         if around is None:
-            scores, found = _score_band(band, model, refine_above=above)
+            scores, found = _score_band(band, model, refine_above=above, cascade=cascade)
             keep = slice(None) if all_windows else scores > plan.threshold
         else:
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
-            scores, found = _score_band_where(band, model, mask, refine_above=above)
+            scores, found = _score_band_where(band, model, mask, refine_above=above, cascade=cascade)
             keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
         if refine:
