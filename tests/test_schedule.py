@@ -94,7 +94,7 @@ def test_default_schedule_is_every_frame_and_old_plans_load():
     assert SearchPlan.from_dict(d) == PLAN
     old = {k: d[k] for k in ("scales", "threshold", "reference_height", "overhang", "horizon")}
     assert SearchPlan.from_dict(old) == dataclasses.replace(
-        PLAN, full_search_every=1, edge_width=160, horizon_height=96, track_margin=0.5, overhang_min_scale=0.0)
+        PLAN, full_search_every=1, edge_width=160, horizon_height=96, track_margin=0.5, overhang_min_scale=0.0, coarse_margin=None)
     assert SearchPlan().overhang_min_scale == 2.0  # plans saved before it overhang at every scale, as they did
     for bad in (dict(full_search_every=0), dict(edge_width=-1), dict(track_margin=-0.1), dict(full_search_every=True)):
         with pytest.raises(ValueError):

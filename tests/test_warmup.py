@@ -24,7 +24,7 @@ def test_without_restores_the_kernels_and_zeroes_outputs():
 
 def test_every_kernel_is_compiled_by_one_side():
     names = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS}
-    assert names == {"_region_variants", "_colour_sums", "_score_colour", "_score_hog"}
+    assert names == {"_region_variants", "_colour_sums", "_score_colour", "_score_hog", "_cell_squares"}
     for mod, fn, prefix in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS:
         assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
 

@@ -36,7 +36,10 @@ __all__ = ["compile_search_kernels"]
 _DONE = threading.Event()
 _LOCK = threading.Lock()
 # (module the search calls it through, name, cache file prefix)
-_HELPER_KERNELS = (("search", "_score_hog", "search._score_hog-"),)
+_HELPER_KERNELS = (
+    ("search", "_score_hog", "search._score_hog-"),
+    ("search", "_cell_squares", "features._cell_squares-"),  # defined in features, called through search
+)
 _MAIN_KERNELS = (
     ("features", "_region_variants", "features._region_variants-"),
     ("search", "_colour_sums", "search._colour_sums-"),

@@ -298,12 +298,20 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
             right -= extra
         elif left >= extra:
             left -= extra
+    ppc = config.pixels_per_cell
+    if s.scale == int(s.scale):
+        # Only the rows of whole cells are searched: cut the rest, so the height too is a whole
+        # number of scaled pixels (INTER_AREA's integer path) and no row is resized for nothing.
+        used = (y1 - y0) // int(s.scale) // ppc * ppc * int(s.scale)
+        if used >= side * s.scale:
+            y1 = y0 + used
+            region = region[: y1 - y0]
     if left or right:
         region = cv2.copyMakeBorder(region, 0, 0, left, right, cv2.BORDER_REFLECT_101)
         x0, x1 = x0 - left, x1 + right
     nw, nh = round((x1 - x0) / (s.scale * s.aspect)), round((y1 - y0) / s.scale)
     scaled = region if (nw, nh) == (x1 - x0, y1 - y0) else cv2.resize(region, (nw, nh), interpolation=cv2.INTER_AREA)
-    ppc, cpw = config.pixels_per_cell, config.cells_per_window
+    cpw = config.cells_per_window
     n_cr, n_cc = nh // ppc, nw // ppc
     rows = np.arange(0, n_cr - cpw + 1, s.step)
     cols = np.arange(0, n_cc - cpw + 1, s.step)
@@ -769,6 +777,31 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
                          np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), maps)
         found[hot] = maps
     return margins, found
+
+
+def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_width: int, around: np.ndarray) -> np.ndarray:
+    """Which windows of ``band`` a between-frames search scores (see :class:`SearchPlan`), ``(rows, cols)`` bool.
+
+    ``around``: live track boxes in working-frame pixels, ``(n, 4)`` float.
+    """
+    ppc, side = config.pixels_per_cell, config.window
+    x1 = band.x0 + band.cols * ppc * band.sx  # (n_cols,) unclipped, working-frame pixels
+    x2 = x1 + side * band.sx
+    y1 = band.y0 + band.rows * ppc * band.sy  # (n_rows,)
+    y2 = y1 + side * band.sy
+    edge = ((x2 <= plan.edge_width) | (x1 >= work_width - plan.edge_width)) & (plan.edge_width > 0)
+    top = min(s.y_start for s in plan.scales) + plan.y_shift
+    horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
+    mask = edge[None, :] | horizon[:, None]
+    if len(around):
+        a = around
+        w, h = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
+        m = plan.track_margin
+        gx1, gy1, gx2, gy2 = a[:, 0] - m * w, a[:, 1] - m * h, a[:, 2] + m * w, a[:, 3] + m * h
+        cols_hit = (x1[None, :] < gx2[:, None]) & (x2[None, :] > gx1[:, None])  # (n, n_cols)
+        rows_hit = (y1[None, :] < gy2[:, None]) & (y2[None, :] > gy1[:, None])  # (n, n_rows)
+        mask |= (rows_hit[:, :, None] & cols_hit[:, None, :]).any(axis=0)
+    return mask
 
 
 def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray, refine_above: float | None = None,
