@@ -11,6 +11,11 @@ Two paths give the same answer:
   HOG block is normalised once per border class and dotted with the weights of every window
   that holds it; spatial bins are block means shared by all windows; colour histograms become a
   per-pixel weight map summed over cells. No Python loop over windows.
+  With :attr:`SearchPlan.coarse_margin` (the default plan's), the windows are scored in two
+  stages: every other window in both directions, then only the neighbours of those within that
+  margin of the threshold; a hit's neighbours score close to it, so the hits are the full
+  search's (a test checks this on the shipped frames) at about a third of the block products.
+  The box refinement of the hot windows is read off the same cells, spatial bins and pixels.
 
 The fast path reproduces the features a cropped window would give, including scikit-image's zero
 gradient on the window border (see :mod:`vehicle_detection.features`), so both paths agree on
