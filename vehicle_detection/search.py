@@ -303,20 +303,12 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
             right -= extra
         elif left >= extra:
             left -= extra
-    ppc = config.pixels_per_cell
-    if s.scale == int(s.scale):
-        # Only the rows of whole cells are searched: cut the rest, so the height too is a whole
-        # number of scaled pixels (INTER_AREA's integer path) and no row is resized for nothing.
-        used = (y1 - y0) // int(s.scale) // ppc * ppc * int(s.scale)
-        if used >= side * s.scale:
-            y1 = y0 + used
-            region = region[: y1 - y0]
     if left or right:
         region = cv2.copyMakeBorder(region, 0, 0, left, right, cv2.BORDER_REFLECT_101)
         x0, x1 = x0 - left, x1 + right
     nw, nh = round((x1 - x0) / (s.scale * s.aspect)), round((y1 - y0) / s.scale)
     scaled = region if (nw, nh) == (x1 - x0, y1 - y0) else cv2.resize(region, (nw, nh), interpolation=cv2.INTER_AREA)
-    cpw = config.cells_per_window
+    ppc, cpw = config.pixels_per_cell, config.cells_per_window
     n_cr, n_cc = nh // ppc, nw // ppc
     rows = np.arange(0, n_cr - cpw + 1, s.step)
     cols = np.arange(0, n_cc - cpw + 1, s.step)
