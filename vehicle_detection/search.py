@@ -696,6 +696,81 @@ def _next_to(seeds: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass
+class _BandFeatures:
+    """One band's features, shared by the kernels that score its windows."""
+
+    conv: np.ndarray  # (h, w, 3) uint8, the model's colour space
+    variants: np.ndarray  # (C, 3, 3, n_cr, n_cc, nb) float32 HOG cell variants
+    squares: np.ndarray | None  # (C, 3, 3, n_cr, n_cc) float64 their sums of squares
+    bin_means: np.ndarray  # (h // f, w // f, 3) float32 spatial-bin means
+    cell_scores: np.ndarray | None  # (n_cr, n_cc) float64 histogram score of each cell
+    f: int  # pixels per spatial bin
+
+
+def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bool) -> _BandFeatures:
+    cfg, folded = model.config, _kernel_weights(model)
+    conv = convert_color(band.image, cfg.color_space)
+    ppc = cfg.pixels_per_cell
+    n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
+    # Cells are summed in float64 and stored in float32: half the memory traffic; margins stay
+    # within 1e-6 of the plain path's (float64 throughout).
+    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations), np.float32)
+    region_hog(hog_input(conv, cfg), cfg, out=variants)
+    squares = None
+    if hog_blocks:
+        squares = buffer("cell_squares", (len(cfg.hog_channels), 3, 3, n_cr, n_cc))
+        for ch in range(len(cfg.hog_channels)):
+            _cell_squares(variants[ch], squares[ch])
+    f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
+    bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
+    cell_scores = None
+    if cfg.spatial_size or cfg.hist_bins:
+        cell_scores = buffer("cell_scores", (n_cr, n_cc))
+        _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
+    return _BandFeatures(conv, variants, squares, bin_means, cell_scores, f)
+
+
+def _margins(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Margins of the windows at ``rows`` x ``cols`` (top-left cells, increasing): ``(len(rows), len(cols))``."""
+    cfg, folded = model.config, _kernel_weights(model)
+    out = np.zeros((len(rows), len(cols)))
+    if feats.squares is not None:
+        _score_hog(feats.variants, cfg.cells_per_block, folded.hog, rows, cols, feats.squares, out)
+    if feats.cell_scores is not None:
+        _score_colour(feats.bin_means, folded.spatial, feats.f, feats.cell_scores, cfg.cells_per_window, cfg.pixels_per_cell,
+                      rows, cols, bool(cfg.spatial_size), bool(cfg.hist_bins), out)
+    return out + folded.bias
+
+
+def _two_stage_margins(feats: _BandFeatures, model: VehicleClassifier, band: _Band, threshold: float, margin: float) -> np.ndarray:
+    """The two-stage search of :attr:`SearchPlan.coarse_margin`: ``(rows, cols)``, -inf where not scored."""
+    first = np.zeros((len(band.rows), len(band.cols)), bool)
+    first[::2, ::2] = True
+    margins = np.full(first.shape, -np.inf)
+    margins[::2, ::2] = _margins(feats, model, band.rows[::2], band.cols[::2])
+    # The second stage: the windows next to a first-stage window within the margin, scored by
+    # the same kernels a band row at a time (the cell sums of squares are computed once).
+    second = _next_to(margins > threshold - margin) & ~first
+    for i in np.flatnonzero(second.any(axis=1)):
+        at = np.flatnonzero(second[i])
+        margins[i, at] = _margins(feats, model, band.rows[i : i + 1], band.cols[at])[0]
+    return margins
+
+
+def _refine_products(feats: _BandFeatures, model: VehicleClassifier, band: _Band, index: np.ndarray) -> np.ndarray:
+    """The box refinement's four edge maps (before its intercept) of the windows at flat ``index``: ``(n, 4)``."""
+    cfg, refine = model.config, _kernel_weights(model).refine
+    n_cr, n_cc = feats.variants.shape[3], feats.variants.shape[4]
+    out = np.zeros((len(index), 4))
+    if len(index):
+        _window_products(feats.variants, cfg.cells_per_block, refine[0], feats.bin_means, refine[1], feats.f, feats.conv,
+                         refine[2], cfg.pixels_per_cell, cfg.cells_per_window,
+                         band.rows[index // len(band.cols)], band.cols[index % len(band.cols)],
+                         np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), out)
+    return out
+
+
 def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True,
                 refine_above: float | None = None,
                 cascade: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -713,67 +788,17 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
     process meanwhile).
     """
     buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
-    cfg = model.config
-    folded = _kernel_weights(model)
-    conv = convert_color(band.image, cfg.color_space)
-    ppc, cpb, cpw = cfg.pixels_per_cell, cfg.cells_per_block, cfg.cells_per_window
-    hog_pixels = hog_input(conv, cfg)
-    n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
-    # Cells are summed in float64 and stored in float32: half the memory traffic; margins stay
-    # within 1e-6 of the plain path's (float64 throughout).
-    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations), np.float32)
-    region_hog(hog_pixels, cfg, out=variants)
-    f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
-    bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
-    two_stage = cascade is not None and hog_blocks
-    step = 2 if two_stage else 1
-    rows, cols = band.rows[::step], band.cols[::step]
-    out = np.zeros((len(rows), len(cols)))
-    if hog_blocks:
-        ss = buffer("cell_squares", (len(cfg.hog_channels), 3, 3, n_cr, n_cc))
-        for ch in range(len(cfg.hog_channels)):
-            _cell_squares(variants[ch], ss[ch])
-        _score_hog(variants, cpb, folded.hog, rows, cols, ss, out)
-    colour = bool(cfg.spatial_size or cfg.hist_bins)
-    if colour:
-        cell_scores = buffer("cell_scores", (n_cr, n_cc))
-        _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
-        _score_colour(bin_means, folded.spatial, f, cell_scores, cpw, ppc, rows, cols,
-                      bool(cfg.spatial_size), bool(cfg.hist_bins), out)
-    out += folded.bias
-    if two_stage:
-        # The second stage: the windows next to a first-stage window within the margin, scored
-        # by the same kernels a band row at a time (the cell sums of squares computed once).
-        threshold, margin = cascade
-        first = np.zeros((len(band.rows), len(band.cols)), bool)
-        first[::2, ::2] = True
-        seeds = np.zeros_like(first)
-        seeds[::2, ::2] = out > threshold - margin
-        second = _next_to(seeds) & ~first
-        margins = np.full(first.shape, -np.inf)
-        margins[::2, ::2] = out
-        for i in np.flatnonzero(second.any(axis=1)):
-            at = np.flatnonzero(second[i])
-            row = np.zeros((1, len(at)))
-            _score_hog(variants, cpb, folded.hog, band.rows[i : i + 1], band.cols[at], ss, row)
-            if colour:
-                _score_colour(bin_means, folded.spatial, f, cell_scores, cpw, ppc, band.rows[i : i + 1], band.cols[at],
-                              bool(cfg.spatial_size), bool(cfg.hist_bins), row)
-            margins[i, at] = row[0] + folded.bias
-        margins = margins.ravel()
+    feats = _band_features(band, model, buffer, hog_blocks)
+    if cascade is not None and hog_blocks:
+        margins = _two_stage_margins(feats, model, band, *cascade).ravel()
     else:
-        margins = out.ravel()
-    if refine_above is None or folded.refine is None:
+        margins = _margins(feats, model, band.rows, band.cols).ravel()
+    if refine_above is None or model.box_regressor is None:
         return margins, None
-    found = np.full((len(margins), 4), np.nan)
+    products = np.full((len(margins), 4), np.nan)
     hot = np.flatnonzero(margins > refine_above)
-    if len(hot):
-        maps = np.zeros((len(hot), 4))
-        _window_products(variants, cpb, folded.refine[0], bin_means, folded.refine[1], f, conv, folded.refine[2], ppc, cpw,
-                         band.rows[hot // len(band.cols)], band.cols[hot % len(band.cols)],
-                         np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), maps)
-        found[hot] = maps
-    return margins, found
+    products[hot] = _refine_products(feats, model, band, hot)
+    return margins, products
 
 
 def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_width: int, around: np.ndarray) -> np.ndarray:
