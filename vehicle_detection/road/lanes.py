@@ -19,9 +19,11 @@ The steps, all pure functions except the small stateful :class:`LaneTracker`:
    are not). :func:`find_lane_pixels` (sliding windows from the histogram peaks) or
    :func:`search_around` (a band around the previous fit), then :func:`fit_lanes`: second-order
    polynomials ``x = A*y^2 + B*y + C`` in warped pixels, and :func:`lane_sane` (roughly parallel,
-   plausible width). When the two separate fits are not sane (a line seen as one or two short
-   dashes, whose own parabola swings away), :func:`fit_parallel_lanes` fits both lines at once
-   as one shape at two offsets (a straight line when the paint spans less than half the view).
+   plausible width). On the paint along the road only, when the two separate fits are not sane
+   (a line seen as one or two short dashes, whose own parabola swings away),
+   :func:`fit_parallel_lanes` fits both lines at once as one shape at two offsets (a straight
+   line when the paint spans less than half the view). :class:`LaneTracker` keeps the fits of
+   all the paint where the two searches agree, else those of the paint along the road.
 4. :class:`LaneTracker`: averages the last good fits; a frame whose fit fails keeps the last good
    fit for ``max_misses`` frames, after which no lane is reported (and none drawn) until a new
    good fit.
@@ -567,18 +569,24 @@ class Lane:
 class LaneTracker:
     """Lane fits over video frames, with smoothing and a bounded fallback.
 
-    ``update(warped_binary)`` keeps the paint that runs along the road (:func:`vertical_paint`,
-    runs of at least ``min_run_m`` metres), searches around the last fit (sliding windows when
-    there is none, or after a miss), fits each line (:func:`fit_lanes`) or, when those fits are
-    not sane, both at once (:func:`fit_parallel_lanes`), checks the fit with :func:`lane_sane`,
-    and returns the average of the last ``smooth`` good fits. A frame whose fit fails gets the last good lane (``fresh=False``) for
-    ``max_misses`` frames; after that, None: no lane is drawn until a good fit comes back.
+    ``update(warped_binary)`` searches around the last fit (sliding windows when there is none,
+    or after a miss), fits each line (:func:`fit_lanes`) and checks the fit with
+    :func:`lane_sane`; then again on the paint that runs along the road only
+    (:func:`vertical_paint`, runs of at least ``min_run_m`` metres: no bonnet edge, no slanted
+    glare), this time fitting both lines at once (:func:`fit_parallel_lanes`) where their own
+    fits are not sane. The first fit is kept when the two agree within ``agree_m`` metres at the
+    bottom row and halfway up (clean footage: the fits of all its paint, as before), the second
+    when they do not or the first is missing (``min_run_m = 0``: the first only). It returns the
+    average of the last ``smooth`` good fits. A frame whose fit fails gets the last good lane
+    (``fresh=False``) for ``max_misses`` frames; after that, None: no lane is drawn until a good
+    fit comes back.
     """
 
     birds_eye: BirdsEye
     smooth: int = 5
     max_misses: int = 5
     min_run_m: float = 0.5
+    agree_m: float = 0.2
     _fits: deque = field(default_factory=deque, repr=False)
     _misses: int = 0
 
@@ -586,22 +594,39 @@ class LaneTracker:
         self._fits.clear()
         self._misses = 0
 
-    def _fit(self, pixels) -> tuple:
-        """Separate fits of the two lines; when they are not sane, the fit of both at once."""
-        left, right = fit_lanes(*pixels)
-        if not lane_sane(left, right, self.birds_eye):
-            view = self.birds_eye  # a dash of 2 m at least; pixels within 0.15 m of their line (rms)
-            left, right = fit_parallel_lanes(*pixels, view.warped_size[1], min_span_px=2.0 / view.ym_per_px, max_rms_px=0.15 / view.xm_per_px)
-        return left, right
+    def _search(self, binary: np.ndarray, fallback: bool) -> tuple:
+        """Fits of the two lines in ``binary``: around the last fit, else from sliding windows;
+        with ``fallback``, both lines at once (:func:`fit_parallel_lanes`) where their own fits are not sane."""
+        view = self.birds_eye
+        searches = [lambda: search_around(binary, *self._mean_fit())] if self._fits and self._misses == 0 else []
+        for pixels in (*searches, lambda: find_lane_pixels(binary)):
+            pixels = pixels()
+            left, right = fit_lanes(*pixels)
+            if not lane_sane(left, right, view) and fallback:  # a dash of 2 m at least; pixels within 0.15 m of their line (rms)
+                left, right = fit_parallel_lanes(*pixels, view.warped_size[1], min_span_px=2.0 / view.ym_per_px, max_rms_px=0.15 / view.xm_per_px)
+            if lane_sane(left, right, view):
+                return left, right
+        return None, None
+
+    def _mean_fit(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.mean([f[0] for f in self._fits], axis=0), np.mean([f[1] for f in self._fits], axis=0)
+
+    def _choose(self, warped_binary: np.ndarray) -> tuple:
+        """The fits of all the paint, or of the paint that runs along the road where the two differ."""
+        view = self.birds_eye
+        fits = self._search(warped_binary, fallback=False)
+        if self.min_run_m <= 0:
+            return fits
+        along = self._search(vertical_paint(warped_binary, int(round(self.min_run_m / view.ym_per_px))), fallback=True)
+        if fits[0] is None or along[0] is None:
+            return along if fits[0] is None else fits
+        h = view.warped_size[1]
+        y = np.array([h - 1, (h - 1) / 2])  # the bottom row and halfway up
+        apart = max(float(np.abs(np.polyval(fits[k], y) - np.polyval(along[k], y)).max()) for k in (0, 1)) * view.xm_per_px
+        return fits if apart <= self.agree_m else along
 
     def update(self, warped_binary: np.ndarray) -> Lane | None:
-        left = right = None
-        warped_binary = vertical_paint(warped_binary, int(round(self.min_run_m / self.birds_eye.ym_per_px)))
-        if self._fits and self._misses == 0:
-            lf, rf = np.mean([f[0] for f in self._fits], axis=0), np.mean([f[1] for f in self._fits], axis=0)
-            left, right = self._fit(search_around(warped_binary, lf, rf))
-        if not lane_sane(left, right, self.birds_eye):
-            left, right = self._fit(find_lane_pixels(warped_binary))
+        left, right = self._choose(warped_binary)
         if lane_sane(left, right, self.birds_eye):
             self._fits.append((left, right))
             while len(self._fits) > self.smooth:
