@@ -295,6 +295,27 @@ def test_run_input_estimates_the_road_plane_and_summarizes(clips, plain_video, t
     assert same is known and nothing is None
 
 
+def test_the_dash_period_sets_the_scale_along_the_road_only(clips, tmp_path, capsys):
+    from vehicle_detection.road.survey import Road
+
+    us, _ = Road(lanes=True).for_footage(clips / "v.mp4")
+    ca, estimate = Road(lanes=True, dash_period_m=14.6).for_footage(clips / "v.mp4")
+    assert estimate.dash_period_m == 14.6 and ca.dash_period_m == 14.6
+    assert ca.plane.ym_per_px == pytest.approx(us.plane.ym_per_px * 14.6 / 12.0)
+    assert ca.plane.xm_per_px == us.plane.xm_per_px  # across the road: the lane's width, 3.7 m, either way
+    np.testing.assert_allclose(ca.plane.src, us.plane.src)
+    # the command line: --dash-period, printed in the estimate; refused where nothing is estimated
+    code, out, err = run(capsys, "detect", clips / "v.mp4", "--lanes", "--dash-period", "14.6", "--no-video", "--boxes",
+                         tmp_path / "b.csv")
+    assert code == 0, err
+    assert any("(dash period 14.6 m;" in line for line in out)
+    code, out, err = run(capsys, "detect", clips / "v.mp4", "--dash-period", "14.6", "--no-video", "--boxes", tmp_path / "c.csv")
+    assert code == 2 and len(err) == 1 and "--dash-period sets the scale of a road plane estimated from the footage" in err[0]
+    with pytest.raises(SystemExit) as info:
+        main(["detect", str(clips / "v.mp4"), "--lanes", "--dash-period", "0.5", "--no-video"])
+    assert info.value.code == 2 and "expected metres from one dash to the next, 2 to 50, got '0.5'" in capsys.readouterr().err
+
+
 def test_the_estimate_refuses_a_video_of_another_size_than_the_camera(plain_video, tmp_path, capsys):
     camera = tmp_path / "cam.json"
     matrix = [[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]]

@@ -16,7 +16,11 @@ from vehicle_detection.road.lanes import (
     LaneTracker,
     birds_eye_from_straight,
     draw_lane,
+    fit_lanes,
+    fit_parallel_lanes,
     lane_measures,
+    lane_sane,
+    vertical_paint,
 )
 from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv, write_boxes_csv, write_lanes_csv
 
@@ -91,6 +95,69 @@ def test_smoothing_averages_good_fits():
     tracker.update(synthetic_road(1000, 0))
     lane = tracker.update(synthetic_road(1000, 20))
     assert lane.offset_m == pytest.approx(-10 * XM, abs=0.05)  # the mean of 0 and 20 px
+
+
+def short_dashes_with_glare() -> np.ndarray:
+    """One short dash of each line, a bonnet's edge and a windscreen's slanted reflections (the
+    854x480 highway dashcam's warped view, drawn on the synthetic road's geometry)."""
+    img = np.zeros((H, W), np.uint8)
+    cv2.rectangle(img, (156, 200), (164, 250), 1, -1)  # one dash of the left line, 5 m
+    cv2.rectangle(img, (476, 215), (484, 250), 1, -1)  # one of the right line, 3.5 m
+    for k in range(4):  # reflections: streaks slanting across the right line's windows
+        cv2.line(img, (400 + 40 * k, 345), (640, 250 + 25 * k), 1, 1)
+    cv2.line(img, (0, 345), (W, 340), 1, 2)  # the bonnet's edge
+    return img
+
+
+def test_short_dashes_among_reflections_make_a_lane():
+    # The sliding windows used to take the streaks and the bonnet's edge for paint: no lane.
+    lane = LaneTracker(identity_view()).update(short_dashes_with_glare())
+    assert lane is not None and lane.fresh
+    assert np.polyval(lane.left_fit, [0, H - 1]) == pytest.approx([160, 160], abs=2)
+    assert np.polyval(lane.right_fit, [0, H - 1]) == pytest.approx([480, 480], abs=2)
+    assert lane.offset_m == pytest.approx(0.0, abs=0.05)
+
+
+def test_vertical_paint_keeps_lines_and_drops_slanted_and_flat_marks():
+    img = short_dashes_with_glare()
+    kept = vertical_paint(img, 5)
+    ys, xs = kept.nonzero()
+    assert set(np.unique(xs)) == set(range(156, 165)) | set(range(476, 485))
+    assert vertical_paint(img, 1) is img
+
+
+def one_dash_beside_a_curving_line(seed: int = 0):
+    """A solid left line curving with a 500 m radius and one noisy 3 m dash of the right line."""
+    rng = np.random.default_rng(seed)
+    y = np.arange(H, dtype=float)
+    bend = (500 - np.sqrt(500**2 - ((H - 1 - y) * YM) ** 2)) / XM
+    lx, ly = np.repeat(160 + bend, 5) + np.tile(np.arange(-2, 3), H), np.repeat(y, 5)
+    dy = np.arange(300, 330, dtype=float)
+    ry = np.repeat(dy, 7)
+    rx = np.repeat(480 + bend[300:330], 7) + np.tile(np.arange(-3, 4), 30) + rng.normal(0, 1.5, len(ry))
+    return lx, ly, rx, ry, bend
+
+
+def test_one_noisy_dash_borrows_the_other_lines_shape():
+    view = identity_view()
+    lx, ly, rx, ry, bend = one_dash_beside_a_curving_line()
+    # on its own, the dash's parabola swings away: the lane is not sane
+    assert not lane_sane(*fit_lanes(lx, ly, rx, ry), view)
+    left, right = fit_parallel_lanes(lx, ly, rx, ry, H)
+    assert lane_sane(left, right, view)
+    y = np.array([0.0, H / 2, H - 1])
+    np.testing.assert_allclose(np.polyval(right, y) - np.polyval(left, y), 320, atol=3)
+    np.testing.assert_allclose(np.polyval(left, y), 160 + bend[y.astype(int)], atol=3)
+
+
+def test_parallel_fit_needs_a_line_on_each_side():
+    lx, ly, rx, ry, _ = one_dash_beside_a_curving_line()
+    assert fit_parallel_lanes(lx, ly, rx[:10], ry[:10], H) == (None, None)  # too few pixels
+    flat = ry * 0 + 315.0
+    assert fit_parallel_lanes(lx, ly, rx, flat, H) == (None, None)  # no span along the road: a speck
+    rng = np.random.default_rng(1)
+    patch_x, patch_y = rng.uniform(420, 560, 400), rng.uniform(200, 330, 400)
+    assert fit_parallel_lanes(lx, ly, patch_x, patch_y, H) == (None, None)  # a patch, not a line
 
 
 def test_distance_from_the_box_bottom():

@@ -99,11 +99,15 @@ def _options(args) -> InputOptions:
     if args.save_camera is not None and camera is not None and camera.birds_eye is not None:
         raise UsageError(f"--save-camera saves a road plane estimated from the footage, but the camera file {args.camera} "
                          "has one (it wins): there is nothing to estimate")
+    if args.dash_period is not None and (not lanes or (camera is not None and camera.birds_eye is not None)):
+        raise UsageError("--dash-period sets the scale of a road plane estimated from the footage: it needs --lanes (or "
+                         "--lanes-csv, --save-camera, --format lanes) and no camera file with a bird's-eye view")
     if args.report:
         require("matplotlib.figure", "report", "--report (the HTML report)")
     inputs = tuple(Path(p) for p in (args.model, args.camera) if p)
+    road = Road(camera, lanes=lanes) if args.dash_period is None else Road(camera, lanes=lanes, dash_period_m=args.dash_period)
     return InputOptions(
-        frames=_frames(args), road=Road(camera, lanes=lanes), video=not args.no_video, formats=formats,
+        frames=_frames(args), road=road, video=not args.no_video, formats=formats,
         encoding=Encoding(args.preset, args.crf), overwrite=args.overwrite, progress=not args.no_progress, inputs=inputs,
         image_horizon=args.horizon == "auto",
         report=args.report,

@@ -63,6 +63,16 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _dash_period(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 2.0 <= value <= 50.0:
+        raise argparse.ArgumentTypeError(f"expected metres from one dash to the next, 2 to 50, got {text!r}")
+    return value
+
+
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--debug", action="store_true", help="show the full traceback on errors")
 
@@ -216,6 +226,10 @@ def _add_detect(sub) -> None:
     p.add_argument("--save-camera", default=None, metavar="C.json",
                    help="save the road plane estimated from the footage of a single input as a camera file, for "
                    "--camera C.json next time (implies --lanes; written only when a plane is found)")
+    p.add_argument("--dash-period", type=_dash_period, default=None, metavar="M",
+                   help="lanes without a camera file: metres from the start of one dash of a lane line to the start of "
+                   "the next, which sets the scale along the road, so the distances (default 12: a US lane line, 10 ft of "
+                   "paint and 30 ft of gap; Californian freeways are often striped 12 ft on 48 ft: 14.6)")
     p.add_argument("--report", action="store_true",
                    help="also write NAME_report.html per input, beside its outputs: track timeline, contact sheet, boxes "
                    "per frame, distances and lanes (needs vehicle-detection[report])")

@@ -14,10 +14,16 @@ The steps, all pure functions except the small stateful :class:`LaneTracker`:
    dashed line's profile; the dashes' own blurred ends would make them look longer).
 2. :func:`lane_binary`: colour (HLS saturation, bright white) OR gradient (Sobel x of lightness)
    thresholds, computed on the warped image (lines are vertical there, and it is smaller).
-3. :func:`find_lane_pixels` (sliding windows from the histogram peaks) or
+3. :func:`vertical_paint` keeps the pixels that run along the road for at least half a metre
+   (lines are near-vertical in the warped view; a bonnet's edge and a windscreen's reflections
+   are not). :func:`find_lane_pixels` (sliding windows from the histogram peaks) or
    :func:`search_around` (a band around the previous fit), then :func:`fit_lanes`: second-order
    polynomials ``x = A*y^2 + B*y + C`` in warped pixels, and :func:`lane_sane` (roughly parallel,
-   plausible width).
+   plausible width). On the paint along the road only, when the two separate fits are not sane
+   (a line seen as one or two short dashes, whose own parabola swings away),
+   :func:`fit_parallel_lanes` fits both lines at once as one shape at two offsets (a straight
+   line when the paint spans less than half the view). :class:`LaneTracker` keeps the fits of
+   all the paint where the two searches agree, else those of the paint along the road.
 4. :class:`LaneTracker`: averages the last good fits; a frame whose fit fails keeps the last good
    fit for ``max_misses`` frames, after which no lane is reported (and none drawn) until a new
    good fit.
@@ -46,7 +52,9 @@ __all__ = [
     "lane_binary",
     "find_lane_pixels",
     "search_around",
+    "vertical_paint",
     "fit_lanes",
+    "fit_parallel_lanes",
     "lane_sane",
     "lane_measures",
     "Lane",
@@ -425,6 +433,96 @@ def fit_lanes(lx, ly, rx, ry, *, min_pixels: int = 50):
     return left, right
 
 
+def vertical_paint(binary: np.ndarray, min_rows: int) -> np.ndarray:
+    """The pixels of a warped binary image that lie on vertical runs of at least ``min_rows`` rows.
+
+    A morphological opening with a ``1 x min_rows`` column: lane paint, which runs along the
+    road (near-vertical in the bird's-eye view), keeps its shape; a bonnet's edge, the rows of a
+    car's shadow and the slanted streaks of a windscreen's reflections, a few rows high wherever
+    they are crossed, are removed.
+
+    Parameters
+    ----------
+    binary : ndarray of uint8, shape (H, W)
+        0 or 1 (:func:`lane_binary` of a warped frame).
+    min_rows : int
+        Shortest vertical run kept; 1 or less keeps everything.
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W)
+        0 or 1.
+    """
+    if min_rows <= 1:
+        return binary
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (1, int(min_rows)))
+    return cv2.morphologyEx(np.ascontiguousarray(binary, dtype=np.uint8), cv2.MORPH_OPEN, kernel)
+
+
+def fit_parallel_lanes(lx, ly, rx, ry, height: int, *, min_pixels: int = 20, min_span_px: float = 20.0, quadratic_span: float = 0.5,
+                       max_rms_px: float = 9.0, min_share: float = 0.5, rounds: int = 2):
+    """Both lane lines fitted at once as one shape at two offsets, or ``(None, None)``.
+
+    ``x = A*y^2 + B*y + C_left`` and ``x = A*y^2 + B*y + C_right`` (warped pixels), each line's
+    pixels weighted as much in total as the other's, so a line seen as one short dash borrows
+    its direction and curvature from the other instead of swinging away on its own. ``A`` is 0
+    (straight lines) unless the paint spans at least ``quadratic_span`` of the view's height.
+    Pixels farther from the fit than 2.5 robust standard deviations (at least 3 pixels) are
+    dropped and the fit repeated, ``rounds`` times; each line must keep ``min_share`` of its
+    pixels (a line's pixels lie mostly along it, a blotch's do not).
+
+    Parameters
+    ----------
+    lx, ly, rx, ry : array_like
+        Pixel coordinates of the left and the right line (:func:`find_lane_pixels`,
+        :func:`search_around`).
+    height : int
+        Rows of the warped view.
+    min_pixels : int
+        Fewest pixels of each line, before and after the outliers are dropped.
+    min_span_px : float
+        Each line's pixels must span this many rows (a dash, not a speck).
+    quadratic_span : float
+        Share of the rows the paint must span for a curved fit.
+    max_rms_px : float
+        Largest root-mean-square distance of each line's kept pixels from its fitted line: the
+        pixels must form a line, not a patch.
+    min_share : float
+        Share of each line's pixels that must be kept (not outliers).
+    rounds : int
+        Refits without the outliers.
+
+    Returns
+    -------
+    left_fit, right_fit : ndarray of shape (3,), or None
+        Coefficients as :func:`fit_lanes` gives them (the same ``A`` and ``B``), or both None
+        when either line has too few pixels, too short a span or too loose a fit.
+    """
+    lx, ly, rx, ry = (np.asarray(v, dtype=np.float64).ravel() for v in (lx, ly, rx, ry))
+    if len(lx) < min_pixels or len(rx) < min_pixels:
+        return None, None
+    x, y = np.r_[lx, rx], np.r_[ly, ry]
+    right = np.r_[np.zeros(len(lx), bool), np.ones(len(rx), bool)]
+    keep = np.ones(len(x), bool)
+    for round_ in range(rounds + 1):
+        n_left, n_right = int(np.sum(keep & ~right)), int(np.sum(keep & right))
+        if min(n_left, n_right) < min_pixels:
+            return None, None
+        quadratic = np.ptp(y[keep]) >= quadratic_span * height
+        design = np.stack(([y**2] if quadratic else []) + [y, (~right).astype(float), right.astype(float)], axis=1)
+        sw = np.sqrt(np.where(right, 1.0 / n_right, 1.0 / n_left) * keep)
+        coef = np.linalg.lstsq(design * sw[:, None], x * sw, rcond=None)[0]
+        residual = x - design @ coef
+        if round_ < rounds:
+            keep = np.abs(residual) <= max(3.0, 2.5 * 1.4826 * float(np.median(np.abs(residual[keep]))))
+    for side in (~right, right):
+        sel = keep & side
+        if np.sum(sel) < min_share * np.sum(side) or np.ptp(y[sel]) < min_span_px or np.sqrt(np.mean(residual[sel] ** 2)) > max_rms_px:
+            return None, None
+    a, b = (coef[0], coef[1]) if quadratic else (0.0, coef[0])
+    return np.array([a, b, coef[-2]]), np.array([a, b, coef[-1]])
+
+
 def lane_sane(left_fit, right_fit, birds_eye: BirdsEye, *, width_m=(2.8, 5.0), max_width_change_m: float = 1.0) -> bool:
     """Both fits present, of a plausible lane width, and roughly parallel (width nearly constant)."""
     if left_fit is None or right_fit is None:
@@ -472,14 +570,23 @@ class LaneTracker:
     """Lane fits over video frames, with smoothing and a bounded fallback.
 
     ``update(warped_binary)`` searches around the last fit (sliding windows when there is none,
-    or after a miss), checks the fit with :func:`lane_sane`, and returns the average of the last
-    ``smooth`` good fits. A frame whose fit fails gets the last good lane (``fresh=False``) for
-    ``max_misses`` frames; after that, None: no lane is drawn until a good fit comes back.
+    or after a miss), fits each line (:func:`fit_lanes`) and checks the fit with
+    :func:`lane_sane`; then again on the paint that runs along the road only
+    (:func:`vertical_paint`, runs of at least ``min_run_m`` metres: no bonnet edge, no slanted
+    glare), this time fitting both lines at once (:func:`fit_parallel_lanes`) where their own
+    fits are not sane. The first fit is kept when the two agree within ``agree_m`` metres at the
+    bottom row and halfway up (clean footage: the fits of all its paint, as before), the second
+    when they do not or the first is missing (``min_run_m = 0``: the first only). It returns the
+    average of the last ``smooth`` good fits. A frame whose fit fails gets the last good lane
+    (``fresh=False``) for ``max_misses`` frames; after that, None: no lane is drawn until a good
+    fit comes back.
     """
 
     birds_eye: BirdsEye
     smooth: int = 5
     max_misses: int = 5
+    min_run_m: float = 0.5
+    agree_m: float = 0.2
     _fits: deque = field(default_factory=deque, repr=False)
     _misses: int = 0
 
@@ -487,13 +594,39 @@ class LaneTracker:
         self._fits.clear()
         self._misses = 0
 
+    def _search(self, binary: np.ndarray, fallback: bool) -> tuple:
+        """Fits of the two lines in ``binary``: around the last fit, else from sliding windows;
+        with ``fallback``, both lines at once (:func:`fit_parallel_lanes`) where their own fits are not sane."""
+        view = self.birds_eye
+        searches = [lambda: search_around(binary, *self._mean_fit())] if self._fits and self._misses == 0 else []
+        for pixels in (*searches, lambda: find_lane_pixels(binary)):
+            pixels = pixels()
+            left, right = fit_lanes(*pixels)
+            if not lane_sane(left, right, view) and fallback:  # a dash of 2 m at least; pixels within 0.15 m of their line (rms)
+                left, right = fit_parallel_lanes(*pixels, view.warped_size[1], min_span_px=2.0 / view.ym_per_px, max_rms_px=0.15 / view.xm_per_px)
+            if lane_sane(left, right, view):
+                return left, right
+        return None, None
+
+    def _mean_fit(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.mean([f[0] for f in self._fits], axis=0), np.mean([f[1] for f in self._fits], axis=0)
+
+    def _choose(self, warped_binary: np.ndarray) -> tuple:
+        """The fits of all the paint, or of the paint that runs along the road where the two differ."""
+        view = self.birds_eye
+        fits = self._search(warped_binary, fallback=False)
+        if self.min_run_m <= 0:
+            return fits
+        along = self._search(vertical_paint(warped_binary, int(round(self.min_run_m / view.ym_per_px))), fallback=True)
+        if fits[0] is None or along[0] is None:
+            return along if fits[0] is None else fits
+        h = view.warped_size[1]
+        y = np.array([h - 1, (h - 1) / 2])  # the bottom row and halfway up
+        apart = max(float(np.abs(np.polyval(fits[k], y) - np.polyval(along[k], y)).max()) for k in (0, 1)) * view.xm_per_px
+        return fits if apart <= self.agree_m else along
+
     def update(self, warped_binary: np.ndarray) -> Lane | None:
-        left = right = None
-        if self._fits and self._misses == 0:
-            lf, rf = np.mean([f[0] for f in self._fits], axis=0), np.mean([f[1] for f in self._fits], axis=0)
-            left, right = fit_lanes(*search_around(warped_binary, lf, rf))
-        if not lane_sane(left, right, self.birds_eye):
-            left, right = fit_lanes(*find_lane_pixels(warped_binary))
+        left, right = self._choose(warped_binary)
         if lane_sane(left, right, self.birds_eye):
             self._fits.append((left, right))
             while len(self._fits) > self.smooth:

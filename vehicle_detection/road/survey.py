@@ -24,7 +24,7 @@ from ..io.video import probe_video
 from .autocamera import EstimateSettings, RoadEstimate, estimate_birds_eye, road_transform
 from .camera import Camera
 from .distance import DistanceTracker
-from .lanes import BirdsEye, Lane, LaneTracker, draw_lane, lane_row
+from .lanes import DASH_PERIOD_M, BirdsEye, Lane, LaneTracker, draw_lane, lane_row
 
 __all__ = ["Road", "RoadSurvey"]
 
@@ -44,11 +44,18 @@ class Road:
     birds_eye : BirdsEye, optional
         The road plane (default: ``camera.birds_eye``). When known, every box gets
         ``distance_m`` and ``relative_speed_mps`` in its ``data`` (NaN where unknown).
+    dash_period_m : float
+        The road's dash period, from the start of one dash of a lane line to the start of the
+        next, m: the scale along the road of a plane estimated from the footage
+        (:meth:`for_footage`; :class:`~vehicle_detection.road.autocamera.EstimateSettings`).
+        Default 12 m, a US lane line (10 ft of paint, 30 ft of gap); Californian freeways are
+        often striped 12 ft on 48 ft, 14.6 m.
     """
 
     camera: Camera | None = None
     lanes: bool = False
     birds_eye: BirdsEye | None = None
+    dash_period_m: float = DASH_PERIOD_M
 
     @property
     def estimates(self) -> bool:
@@ -102,7 +109,8 @@ class Road:
         -------
         road : Road
             Itself when no lanes are asked for or a road plane is known; else with the plane
-            estimated from the footage (frames undistorted with ``camera`` first), or without
+            estimated from the footage (frames undistorted with ``camera`` first; the scale along
+            the road from ``dash_period_m``), or without
             lanes when the footage shows no lane lines (never a guess).
         estimate : RoadEstimate or None
             What the estimate found (``estimate.reason``: why there is no plane), None when
@@ -119,7 +127,7 @@ class Road:
             if self.camera is not None:
                 info = probe_video(footage)
                 self.camera.check_size(info.width, info.height, f"{footage}: the video")
-            birds_eye, estimate = road_transform(footage, self.camera, start=start)
+            birds_eye, estimate = road_transform(footage, self.camera, start=start, settings=EstimateSettings(dash_period_m=self.dash_period_m))
         else:
             sizes = {f.shape[:2] for f in footage}
             if self.camera is not None:
@@ -128,7 +136,8 @@ class Road:
             if len(sizes) > 1:
                 raise InputError(f"the images are of {len(sizes)} sizes; a road plane is estimated from images of one camera "
                                  "(give --camera, or run each size on its own)")
-            birds_eye, estimate = estimate_birds_eye(footage, self.camera, EstimateSettings(min_frames=1, min_dash_frames=1))
+            settings = EstimateSettings(dash_period_m=self.dash_period_m, min_frames=1, min_dash_frames=1)
+            birds_eye, estimate = estimate_birds_eye(footage, self.camera, settings)
         if birds_eye is None:
             return replace(self, lanes=False), estimate
         return replace(self, birds_eye=birds_eye), estimate
