@@ -111,7 +111,8 @@ def train(
     (:func:`~vehicle_detection.training.augment.augment`, drawn from ``random_state``) with its
     label. A copy is trained on only where its source patch is: on the training side of each
     split (so a grouped split has no copy of a test-side patch, or of its group, in training),
-    and in the final fit. The test sides hold the original patches only.
+    and in the final fit. The test sides hold the original patches only. The splits are then
+    fitted one after the other (whatever ``n_jobs``), to bound the memory.
 
     Returns
     -------
@@ -148,7 +149,9 @@ def train(
     del images
     metrics = {}
     if evaluate:
-        results = Parallel(n_jobs=n_jobs, backend="threading")(
+        # The copies multiply each fit's memory (LinearSVC holds a float64 copy of its rows and
+        # liblinear another): with them the two splits are fitted one after the other.
+        results = Parallel(n_jobs=1 if len(origin) else n_jobs, backend="threading")(
             delayed(_evaluate_split)(features, labels, config, with_copies(tr, origin, n), te, C) for tr, te in splits.values()
         )
         for result, (tr, _) in zip(results, splits.values()):
