@@ -163,6 +163,8 @@ CASES = {
     "missing-argument": (["detect"], 2, ["the following arguments are required: INPUT", "vehicle-detection detect --help"], [], False),
     "bad-number": (["train", "--C", "-1"], 2, ["argument --C: expected a finite number > 0, got '-1'"], [], False),
     "bad-jobs": (["sweep", "--jobs", "0"], 2, ["argument --jobs: expected a whole number >= 1, got '0'"], [], False),
+    "bad-augment": (["train", "--augment", "-1"], 2, ["argument --augment: expected a whole number >= 0, got '-1'"], [], False),
+    "augment-not-a-number": (["train", "--augment", "two"], 2, ["argument --augment: expected a whole number >= 0, got 'two'"], [], False),
     "bad-horizon": (["detect", "street.jpg", "--horizon", "sky"], 2,
                     ["argument --horizon: expected a fraction in [0, 1), 'auto' or 'plan', got 'sky'"], [], False),
     # 3: bad input
@@ -465,6 +467,20 @@ def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_p
     assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
     tracker = loaded.detector_config.tracker
     assert tracker.window_inset == (0.0, 0.0, 0.0, 0.0) and tracker.cluster_iou > 0 and tracker.box_vote > 0
+
+
+@needs_archives
+def test_train_augment_adds_copies_and_the_model_says_how_it_was_trained(tmp_path, capsys):
+    from vehicle_detection.classifier import VehicleClassifier
+
+    data = small_archives(tmp_path / "data", 100)
+    model = tmp_path / "m.npz"
+    assert main(["train", "--data-dir", str(data), "--augment", "2", "--json", "--model", str(model)]) == 0
+    report = last_json(capsys.readouterr().out)
+    assert report["n_images"] == 200 and report["n_augmented"] == 400
+    assert report["n_train"] == 3 * (200 - report["n_test"])  # the training side's patches and their copies, not the test side's
+    augment = VehicleClassifier.load(model).metrics["augment"]
+    assert augment["copies"] == 2 and augment["n_copies"] == 400 and {"gamma", "blur", "jpeg", "scale"} <= set(augment)
 
 
 def test_mine_negatives_horizon_takes_a_fraction(tmp_path):

@@ -41,6 +41,7 @@ from .metrics.detection import (
 from .metrics.tracking import tracking_scores
 
 # Training
+from .training.augment import AugmentConfig
 from .training.data import find_duplicates, load_dataset
 from .training.fit import split_indices, sweep, sweep_configs, train
 from .training.mining import MiningOptions, MiningSource, mine_negatives, write_negatives

@@ -34,6 +34,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value
+
+
 def _fraction(text: str) -> float:
     try:
         value = float(text)
@@ -124,7 +134,11 @@ def _add_train(sub) -> None:
     p.add_argument("--labels", nargs="+", default=[], metavar="L.json",
                    help="hand-labelled frames of your own cameras (the evaluate format): their cars are added as vehicle "
                    "patches, and the box refinement is learned from them. Never pass frames you score later")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the splits")
+    p.add_argument("--augment", type=_count, default=0, metavar="N",
+                   help="add N augmented copies of each training patch (mirror, zoom, blur, gamma, contrast, brightness, "
+                   "JPEG artefacts) for other cameras and light; a copy is trained on only where its source patch is "
+                   "(default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the splits and of the augmentation")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")
     _add_feature_options(p)

@@ -10,6 +10,7 @@ from ..classifier import DEFAULT_C
 from ..errors import OutputError
 from ..io import check_output_path
 from ..metrics.detection import load_annotations
+from ..training.augment import AugmentConfig
 from ..training.data import CLASSES, check_split_sizes, default_data_dir, list_extra_negatives, load_dataset
 from ..training.fit import train, with_box_refinement
 from ..training.mining import labelled_dataset
@@ -33,6 +34,8 @@ def _train_report(model) -> dict:
         "grouped_n_train": g.get("n_train"),
         "grouped_n_test": g.get("n_test"),
         "n_images": m.get("n_images"),
+        "n_augmented": m.get("augment", {}).get("n_copies", 0),
+        "augment_seconds": m.get("augment", {}).get("seconds", 0.0),
         "n_features": m.get("n_features"),
         "load_seconds": m.get("load_seconds"),
         "feature_seconds": m.get("feature_seconds"),
@@ -52,7 +55,8 @@ def run(args) -> int:
     if labels:
         ds = ds.concatenate(labelled_dataset(labels))
     check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
-    model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed)
+    augment = AugmentConfig(copies=args.augment)
+    model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed, augment=augment)
     if labels:
         model = with_box_refinement(model, labels)
     extra = {}
@@ -64,6 +68,8 @@ def run(args) -> int:
     say = human_print(args)
     m = model.metrics
     say(f"images: {m['n_images']} ({', '.join(f'{k} {v}' for k, v in ds.counts().items())})")
+    if "augment" in m:
+        say(f"augmented: {m['augment']['n_copies']} copies ({args.augment} per image, {m['augment']['seconds']:.1f} s)")
     say(f"features: {m['n_features']} per image ({config})")
     for name in ("random_split", "grouped_split"):
         s = m[name]

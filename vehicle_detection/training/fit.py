@@ -22,10 +22,11 @@ from ..classifier import DEFAULT_C, VehicleClassifier
 from ..errors import InputError
 from ..features import FeatureConfig, extract_features
 from ..refine import fit_box_regressor
+from .augment import AugmentConfig, augment as augment_patches
 from .data import Dataset, check_split_sizes
 from .mining import labelled_frames
 
-__all__ = ["split_indices", "train", "with_box_refinement", "sweep", "sweep_configs"]
+__all__ = ["split_indices", "with_copies", "train", "with_box_refinement", "sweep", "sweep_configs"]
 
 
 def split_indices(labels, groups=None, *, test_size: float = 0.2, random_state: int = 0):
@@ -43,6 +44,29 @@ def split_indices(labels, groups=None, *, test_size: float = 0.2, random_state: 
         return train_test_split(idx, test_size=test_size, random_state=random_state, shuffle=True, stratify=labels)
     gss = GroupShuffleSplit(n_splits=1, test_size=test_size, random_state=random_state)
     return next(gss.split(idx, labels, groups))
+
+
+def with_copies(train_index, origin, n: int) -> np.ndarray:
+    """A split's training indexes with those of the augmented copies of its patches.
+
+    Parameters
+    ----------
+    train_index : ndarray of int
+        Training-side indexes into the ``n`` original patches.
+    origin : ndarray of int, shape (M,)
+        Source patch of each augmented copy; copy ``j`` is row ``n + j`` of the features.
+    n : int
+        Number of original patches.
+
+    Returns
+    -------
+    ndarray of int64
+        ``train_index`` followed by ``n + j`` for every copy ``j`` whose source is in it.
+    """
+    train_index = np.asarray(train_index, dtype=np.int64)
+    on_train = np.zeros(n, bool)
+    on_train[train_index] = True
+    return np.concatenate([train_index, n + np.flatnonzero(on_train[np.asarray(origin, dtype=np.int64)])])
 
 
 def _scores(y_true, y_pred) -> dict:
@@ -74,6 +98,7 @@ def train(
     random_state: int = 0,
     evaluate: bool = True,
     n_jobs: int = 2,
+    augment: AugmentConfig | None = None,
 ) -> VehicleClassifier:
     """Extract features, report honest accuracies, and fit the final model on every patch.
 
@@ -82,12 +107,21 @@ def train(
     :attr:`~vehicle_detection.training.data.Dataset.groups` (GTI time-series blocks, byte-identical
     files) is on both sides. The final model is then fitted on all patches.
 
+    With ``augment`` (``copies`` > 0), each patch gets ``augment.copies`` augmented copies
+    (:func:`~vehicle_detection.training.augment.augment`, drawn from ``random_state``) with its
+    label. A copy is trained on only where its source patch is: on the training side of each
+    split (so a grouped split has no copy of a test-side patch, or of its group, in training),
+    and in the final fit. The test sides hold the original patches only. The splits are then
+    fitted one after the other (whatever ``n_jobs``), to bound the memory.
+
     Returns
     -------
     VehicleClassifier
         With ``metrics``: ``random_split`` and ``grouped_split`` (accuracy, precision, recall,
-        confusion, n_train, n_test, fit_seconds), ``feature_seconds`` and ``fit_seconds`` for
-        all patches, ``n_images``, ``n_features``, ``C``.
+        confusion, n_train (augmented copies included), n_test, n_augmented (copies trained
+        on), fit_seconds), ``feature_seconds`` and ``fit_seconds`` for all patches (copies
+        included), ``n_images`` (originals), ``n_features``, ``C``, and ``augment`` (the
+        :class:`AugmentConfig` fields, ``n_copies``, ``seconds``).
     """
     labels = np.asarray(dataset.labels)
     splits = {}
@@ -99,23 +133,38 @@ def train(
         }
     elif len(np.unique(labels)) < 2:
         raise InputError(f"dataset: training needs images of both classes, got only label(s) {np.unique(labels).tolist()}")
+    n = len(labels)
+    images, origin, aug_metrics = dataset.images, np.zeros(0, np.int64), {}
+    if augment is not None and augment.copies > 0:
+        t = time.perf_counter()
+        copies, origin = augment_patches(dataset.images, augment, np.random.default_rng(random_state))
+        images = np.concatenate([dataset.images, copies])
+        labels = np.concatenate([labels, labels[origin]])
+        del copies
+        aug_metrics = {"augment": {**augment.to_dict(), "n_copies": int(len(origin)), "seconds": round(time.perf_counter() - t, 3)}}
     extract_features(dataset.images[:2], config)  # compile the kernels outside the timing
     t = time.perf_counter()
-    features = extract_features(dataset.images, config)
+    features = extract_features(images, config)
     feature_s = time.perf_counter() - t
+    del images
     metrics = {}
     if evaluate:
-        results = Parallel(n_jobs=n_jobs, backend="threading")(
-            delayed(_evaluate_split)(features, labels, config, tr, te, C) for tr, te in splits.values()
+        # The copies multiply each fit's memory (LinearSVC holds a float64 copy of its rows and
+        # liblinear another): with them the two splits are fitted one after the other.
+        results = Parallel(n_jobs=1 if len(origin) else n_jobs, backend="threading")(
+            delayed(_evaluate_split)(features, labels, config, with_copies(tr, origin, n), te, C) for tr, te in splits.values()
         )
+        for result, (tr, _) in zip(results, splits.values()):
+            result["n_augmented"] = result["n_train"] - int(len(tr))
         metrics.update(zip(splits, results))
     t = time.perf_counter()
     model = VehicleClassifier.fit(features, labels, config, C=C)
     fit_s = time.perf_counter() - t
     metrics.update(
+        **aug_metrics,
         feature_seconds=round(feature_s, 3),
         fit_seconds=round(fit_s, 3),
-        n_images=int(len(labels)),
+        n_images=int(n),
         n_features=int(config.n_features),
         C=C,
         test_size=test_size,
