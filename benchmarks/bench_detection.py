@@ -10,12 +10,18 @@ committed test_video.mp4. Prints frames per second for:
   encodes it to an H.264 file (libx264, ``ultrafast``, crf 23, as ``process_video`` does) with
   the same library the pipeline uses; no threads, no detection. The floor any video tool pays;
   measured in the same run as the rest;
+* decode+encode, FFmpeg's own (the second reference): what ``ffmpeg -i VIDEO -c:v libx264
+  -preset ultrafast`` does, in PyAV: threaded decoding (frame and slice threads), YUV frames
+  straight to the threaded encoder, no RGB at all;
 * decode+encode through :mod:`vehicle_detection.io.video` (``read_frames`` into ``VideoWriter``,
   same settings): its threads and queues against the plain loop;
 * detection only: the detector and tracker over frames already in memory;
 * end to end: decode, detect, track, draw and encode to a file (``process_video``);
 
-and the ratio of end-to-end to the plain decode+encode. With ``--camera`` (a file from
+and the ratio of end-to-end to both references. Then end to end once more with a
+:class:`~vehicle_detection.io.Timeline`, printed as a table: milliseconds a frame of each stage
+in each thread (decode, conversion to RGB, search, tracking, drawing, conversion to YUV,
+encoding) and of each thread's waits on its queues. With ``--camera`` (a file from
 ``vehicle-detection calibrate``), also end to end with every frame undistorted, and with
 ``--lanes`` too, end to end with undistortion, lane finding and drawing, and distances
 (``process_video(road=Road(camera, lanes=True))``), plus the cost of each step per frame. With
@@ -57,6 +63,7 @@ def main():
     from vehicle_detection.detector import Detector
     from vehicle_detection.pipeline import process_video
     from vehicle_detection.road.survey import Road
+    from vehicle_detection.io.timeline import Timeline
     from vehicle_detection.io.video import VideoWriter, probe_video, read_frames
 
     video = Path(args.video) if args.video else _default_video()
@@ -71,6 +78,10 @@ def main():
         t = time.perf_counter()
         plain_decode_encode(video, Path(tmp) / "plain.mp4", n)
         plain_fps = n / (time.perf_counter() - t)
+
+        t = time.perf_counter()
+        ffmpeg_decode_encode(video, Path(tmp) / "ffmpeg.mp4", n)
+        ffmpeg_fps = n / (time.perf_counter() - t)
 
         t = time.perf_counter()
         with VideoWriter(Path(tmp) / "copy.mp4", info.fps, info.size, preset="ultrafast") as w:
@@ -88,6 +99,9 @@ def main():
         t = time.perf_counter()
         process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, frames=(0, n))
         e2e_fps = n / (time.perf_counter() - t)
+
+        timeline = Timeline()
+        process_video(video, Path(tmp) / "timed.mp4", detector=detector, progress=False, frames=(0, n), timeline=timeline)
 
         extra = []
         if args.full_search_every:
@@ -133,12 +147,16 @@ def main():
                 extra.append(f"end to end, undistorted + lanes + distances: {n / (time.perf_counter() - t):7.1f} fps")
 
     print(f"decode+encode, plain PyAV (reference)    : {plain_fps:7.1f} fps")
+    print(f"decode+encode, FFmpeg's own (threaded, no RGB; 2nd reference): {ffmpeg_fps:7.1f} fps")
     print(f"decode+encode, vehicle_detection.io.video: {copy_fps:7.1f} fps")
     print(f"detection only (in memory): {detect_fps:7.1f} fps   ({1000 / detect_fps:.1f} ms/frame)")
     print(f"end to end (decode, detect, track, draw, encode): {e2e_fps:7.1f} fps   "
-          f"= {e2e_fps / plain_fps:.2f} x plain decode+encode")
+          f"= {e2e_fps / plain_fps:.2f} x plain decode+encode, {e2e_fps / ffmpeg_fps:.2f} x FFmpeg's own")
     for line in extra:
         print(line)
+    print(f"\ntimeline of end to end (another run, {timeline.frames / timeline.wall:.1f} fps; stages of threads that "
+          "overlap add up to more than the wall time):")
+    print(timeline.table())
 
 
 def plain_decode_encode(src: Path, dest: Path, n: int | None = None) -> int:
@@ -156,6 +174,33 @@ def plain_decode_encode(src: Path, dest: Path, n: int | None = None) -> int:
                 break
             rgb = frame.to_ndarray(format="rgb24")
             out.mux(ost.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+            done += 1
+        out.mux(ost.encode(None))
+    return done
+
+
+def ffmpeg_decode_encode(src: Path, dest: Path, n: int | None = None) -> int:
+    """FFmpeg's own transcode of (the first ``n``) frames of ``src`` to ``dest``, as
+    ``ffmpeg -i SRC -an -c:v libx264 -preset ultrafast -crf 23 DEST`` does it, in PyAV: the
+    decoder with frame and slice threads (``thread_type="AUTO"``, FFmpeg's thread count),
+    decoded YUV frames straight into libx264 (its own threads), no RGB; returns the frames done."""
+    import av
+    from av.video.frame import PictureType
+
+    done = 0
+    with av.open(str(src)) as inp, av.open(str(dest), "w", format="mp4") as out:
+        ist = inp.streams.video[0]
+        ist.codec_context.thread_type, ist.codec_context.thread_count = "AUTO", 0
+        ost = out.add_stream("libx264", rate=ist.average_rate, options={"preset": "ultrafast", "crf": "23"})
+        ost.width, ost.height, ost.pix_fmt = ist.codec_context.width, ist.codec_context.height, "yuv420p"
+        ost.codec_context.thread_count = 0
+        for frame in inp.decode(ist):
+            if n is not None and done >= n:
+                break
+            if frame.format.name != "yuv420p":
+                frame = frame.reformat(format="yuv420p")
+            frame.pict_type = PictureType.NONE  # x264 chooses the key frames, as the ffmpeg command's does
+            out.mux(ost.encode(frame))
             done += 1
         out.mux(ost.encode(None))
     return done
