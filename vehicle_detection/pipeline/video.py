@@ -250,10 +250,13 @@ def run_video(
             if timeline is not None:
                 t = timeline.lap("track", t)
             if writer is not None:
-                drawn = draw_detections(survey.draw(frame, lane), boxes)
+                # The frame is this run's own (decoded, or undistorted, here) and its search is
+                # done: the boxes are drawn on it, and the writer takes it without a copy.
+                picture = survey.draw(frame, lane)
+                drawn = draw_detections(picture, boxes, out=picture)
                 if timeline is not None:
                     timeline.lap("draw", t)
-                writer.write(drawn)
+                writer.write(drawn, copy=False)
             if bar is not None:
                 bar.update()
         table = survey.complete(Detections.concatenate(found))
