@@ -131,7 +131,9 @@ class Detector:
             return None
         return estimate
 
-    def for_footage(self, frames: Iterator[np.ndarray], tracker: Tracker) -> tuple[Detector, Iterator[np.ndarray]]:
+    def for_footage(
+        self, frames: Iterator[np.ndarray], tracker: Tracker, *, workers: int = 1
+    ) -> tuple[Detector, Iterator[np.ndarray]]:
         """The detector for a video's frames, and the frames (none consumed).
 
         The first time (for a fresh ``tracker``), the first :data:`HORIZON_FRAMES` frames are
@@ -145,6 +147,8 @@ class Detector:
         * with :attr:`estimates_horizon`, the horizon of the picture; the returned detector
           searches there, unless the estimate lies within
           :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
+
+        ``workers`` frames are measured at once (threads); the result is the same.
         """
         overlays, horizon = self.config.auto_overlays, self.estimates_horizon
         if not (overlays or horizon):
@@ -160,7 +164,8 @@ class Detector:
         if horizon and not state.horizon_searched:
             cut = state.overlays if overlays else None
             pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
-            state.horizon = self._moved_to(estimate_horizon(pictures, min_frames=min(3, len(first))))
+            estimate = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers)
+            state.horizon = self._moved_to(estimate)
             state.horizon_searched = True
         det = self.with_horizon(state.horizon)
         return (det.with_overlays(state.overlays) if overlays else det), frames
@@ -325,8 +330,8 @@ class Detector:
         searches are searched around the tracks live when the frame is submitted (the tracker
         then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
 
-        A :class:`~vehicle_detection.io.Timeline` is filled with the stages ``search`` (in the
-        pool), ``search_wait`` and ``track`` (in this thread).
+        A :class:`~vehicle_detection.io.Timeline` is filled with the stages ``warmup``,
+        ``footage``, ``search_wait`` and ``track`` (in this thread) and ``search`` (in the pool).
         """
         tracker = tracker or self.new_tracker()
         lag = max(0, self.config.tracker.min_hits - 1)
@@ -359,8 +364,13 @@ class Detector:
         (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
         A ``timeline`` is filled as :meth:`track_frames` says.
         """
+        t = Timeline.now() if timeline is not None else 0.0
         compile_search_kernels(self.model)  # on a fresh install, on both cores
-        det, frames = self.for_footage(iter(frames), tracker)
+        if timeline is not None:
+            t = timeline.lap("warmup", t)
+        det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
+        if timeline is not None:
+            timeline.lap("footage", t)
         search = det.windows if timeline is None else timeline.timed("search", det.windows)
 
         def advance(frame, future):

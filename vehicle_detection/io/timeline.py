@@ -15,6 +15,9 @@ stage                   thread       what
 ``to_rgb``              decoder      convert it to RGB (and turn it upright)
 ``decoder_wait``        decoder      wait for room in the queue to the consumer
 ``read_wait``           main         wait for the decoder's next frame
+``warmup``              main         load (or compile) the search kernels, once a run
+``footage``             main         measure the first frames (horizon, black bars), once
+                                     a run; their ``read_wait`` is part of it
 ``prepare``             helper       undistort, find lanes (only with a camera)
 ``search``              search pool  the sliding-window search (:meth:`Detector.windows`)
 ``search_wait``         main         wait for the search of the next frame in order
@@ -44,6 +47,8 @@ STAGES: dict[str, str] = {
     "to_rgb": "decoder",
     "decoder_wait": "decoder",
     "read_wait": "main",
+    "warmup": "main",
+    "footage": "main",
     "prepare": "helper",
     "search": "search",
     "search_wait": "main",
