@@ -18,7 +18,9 @@ committed test_video.mp4. Prints frames per second for:
 * detection only: the detector and tracker over frames already in memory;
 * end to end: decode, detect, track, draw and encode to a file (``process_video``);
 
-and the ratio of end-to-end to both references. Then end to end once more with a
+and the ratio of end-to-end to both references; with each, the CPU time a frame of all the
+process's threads (less disturbed by other work on the machine than the wall time), and the
+cost of the pipeline around the search: end to end less detection only. Then end to end once more with a
 :class:`~vehicle_detection.io.Timeline`, printed as a table: milliseconds a frame of each stage
 in each thread (decode, conversion to RGB, search, tracking, drawing, conversion to YUV,
 encoding) and of each thread's waits on its queues. With ``--camera`` (a file from
@@ -80,30 +82,30 @@ def main():
     print(f"{video.name}: {info.width}x{info.height}, {n} frames, {os.cpu_count()} cores")
 
     with tempfile.TemporaryDirectory() as tmp:
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         plain_decode_encode(video, Path(tmp) / "plain.mp4", n)
-        plain_fps = n / (time.perf_counter() - t)
+        plain_fps, plain_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         ffmpeg_decode_encode(video, Path(tmp) / "ffmpeg.mp4", n)
-        ffmpeg_fps = n / (time.perf_counter() - t)
+        ffmpeg_fps, ffmpeg_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         with VideoWriter(Path(tmp) / "copy.mp4", info.fps, info.size, preset="ultrafast") as w:
             for i, f in enumerate(read_frames(video)):
                 if i >= n:
                     break
                 w.write(f)
-        copy_fps = n / (time.perf_counter() - t)
+        copy_fps, copy_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         for _ in detector.track(frames):
             pass
-        detect_fps = n / (time.perf_counter() - t)
+        detect_fps, detect_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, frames=(0, n))
-        e2e_fps = n / (time.perf_counter() - t)
+        e2e_fps, e2e_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
         timeline = None
         if "timeline" in inspect.signature(process_video).parameters:  # not in older checkouts
@@ -154,12 +156,16 @@ def main():
                               road=Road(camera, lanes=True), tables={"lanes": Path(tmp) / "lanes.csv"})
                 extra.append(f"end to end, undistorted + lanes + distances: {n / (time.perf_counter() - t):7.1f} fps")
 
-    print(f"decode+encode, plain PyAV (reference)    : {plain_fps:7.1f} fps")
-    print(f"decode+encode, FFmpeg's own (threaded, no RGB; 2nd reference): {ffmpeg_fps:7.1f} fps")
-    print(f"decode+encode, vehicle_detection.io.video: {copy_fps:7.1f} fps")
-    print(f"detection only (in memory): {detect_fps:7.1f} fps   ({1000 / detect_fps:.1f} ms/frame)")
+    print("(cpu: milliseconds of CPU a frame, all threads of this process)")
+    print(f"decode+encode, plain PyAV (reference)    : {plain_fps:7.1f} fps   cpu {plain_cpu:6.1f} ms")
+    print(f"decode+encode, FFmpeg's own (threaded, no RGB; 2nd reference): {ffmpeg_fps:7.1f} fps   cpu {ffmpeg_cpu:6.1f} ms")
+    print(f"decode+encode, vehicle_detection.io.video: {copy_fps:7.1f} fps   cpu {copy_cpu:6.1f} ms")
+    print(f"detection only (in memory): {detect_fps:7.1f} fps   ({1000 / detect_fps:.1f} ms/frame)   cpu {detect_cpu:6.1f} ms")
     print(f"end to end (decode, detect, track, draw, encode): {e2e_fps:7.1f} fps   "
-          f"= {e2e_fps / plain_fps:.2f} x plain decode+encode, {e2e_fps / ffmpeg_fps:.2f} x FFmpeg's own")
+          f"= {e2e_fps / plain_fps:.2f} x plain decode+encode, {e2e_fps / ffmpeg_fps:.2f} x FFmpeg's own   "
+          f"cpu {e2e_cpu:6.1f} ms")
+    print(f"the pipeline around the search (end to end - detection only): {1000 / e2e_fps - 1000 / detect_fps:6.1f} ms "
+          f"wall, {e2e_cpu - detect_cpu:6.1f} ms cpu a frame")
     for line in extra:
         print(line)
     if timeline is None:
