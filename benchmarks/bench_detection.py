@@ -39,6 +39,7 @@ import itertools
 import os
 import tempfile
 import time
+from fractions import Fraction
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -208,7 +209,8 @@ def ffmpeg_decode_encode(src: Path, dest: Path, n: int | None = None) -> int:
     with av.open(str(src)) as inp, av.open(str(dest), "w", format="mp4") as out:
         ist = inp.streams.video[0]
         ist.codec_context.thread_type, ist.codec_context.thread_count = "AUTO", 0
-        ost = out.add_stream("libx264", rate=ist.average_rate, options={"preset": "ultrafast", "crf": "23"})
+        rate = ist.codec_context.framerate or ist.guessed_rate or ist.average_rate  # the codec's (25): whole ticks
+        ost = out.add_stream("libx264", rate=rate, options={"preset": "ultrafast", "crf": "23"})
         ost.width, ost.height, ost.pix_fmt = ist.codec_context.width, ist.codec_context.height, "yuv420p"
         ost.codec_context.thread_count = 0
         for frame in inp.decode(ist):
@@ -217,6 +219,7 @@ def ffmpeg_decode_encode(src: Path, dest: Path, n: int | None = None) -> int:
             if frame.format.name != "yuv420p":
                 frame = frame.reformat(format="yuv420p")
             frame.pict_type = PictureType.NONE  # x264 chooses the key frames, as the ffmpeg command's does
+            frame.pts, frame.time_base = done, 1 / Fraction(rate)  # a constant rate, as ffmpeg's mp4 output
             out.mux(ost.encode(frame))
             done += 1
         out.mux(ost.encode(None))
