@@ -17,6 +17,9 @@ committed test_video.mp4. Prints frames per second for:
   same settings): its threads and queues against the plain loop;
 * detection only: the detector and tracker over frames already in memory;
 * end to end: decode, detect, track, draw and encode to a file (``process_video``);
+* end to end with a light search (one band of 256-pixel windows, every 4 cells: a few hundred
+  windows a frame), 3 times: the pipeline around the search nearly on its own, against the
+  references;
 
 and the ratio of end-to-end to both references; with each, the CPU time a frame of all the
 process's threads (less disturbed by other work on the machine than the wall time), and the
@@ -34,6 +37,7 @@ encoding) and of each thread's waits on its queues. With ``--camera`` (a file fr
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import inspect
 import itertools
 import os
@@ -68,6 +72,7 @@ def main():
     from vehicle_detection.detector import Detector
     from vehicle_detection.pipeline import process_video
     from vehicle_detection.road.survey import Road
+    from vehicle_detection.search import SearchScale
     try:
         from vehicle_detection.io.timeline import Timeline
     except ImportError:  # an older checkout
@@ -108,6 +113,18 @@ def main():
         process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, frames=(0, n))
         e2e_fps, e2e_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
+        # The pipeline around the search on its own: end to end with a search of a few hundred
+        # windows (one band of 256-pixel windows, every 4 cells), the rest as it is.
+        cfg = detector.config
+        light_plan = dataclasses.replace(cfg.plan, scales=(SearchScale(4.0, 336, 720, step=4),))
+        light = Detector(detector.model.replace(detector_config=cfg.replace(plan=light_plan)))
+        light_fps, light_cpu = [], []
+        for i in range(3):
+            t, c = time.perf_counter(), time.process_time()
+            process_video(video, Path(tmp) / "light.mp4", detector=light, progress=False, frames=(0, n), overwrite=True)
+            light_fps.append(n / (time.perf_counter() - t))
+            light_cpu.append(1000 * (time.process_time() - c) / n)
+
         timeline = None
         if "timeline" in inspect.signature(process_video).parameters:  # not in older checkouts
             timeline = Timeline()
@@ -116,9 +133,6 @@ def main():
 
         extra = []
         if args.full_search_every:
-            import dataclasses
-
-            cfg = detector.config
             plan = dataclasses.replace(cfg.plan, full_search_every=args.full_search_every)
             scheduled = Detector(detector.model.replace(detector_config=cfg.replace(plan=plan)))
             t = time.perf_counter()
@@ -165,6 +179,9 @@ def main():
     print(f"end to end (decode, detect, track, draw, encode): {e2e_fps:7.1f} fps   "
           f"= {e2e_fps / plain_fps:.2f} x plain decode+encode, {e2e_fps / ffmpeg_fps:.2f} x FFmpeg's own   "
           f"cpu {e2e_cpu:6.1f} ms")
+    print(f"end to end, light search (one band, ~{light.config.plan.scales[0].scale * 64:.0f}-px windows every 4 cells), "
+          f"3 runs: {_range(light_fps)} fps = {_range([f / plain_fps for f in light_fps], '{:.2f}')} x plain decode+encode, "
+          f"{_range([f / ffmpeg_fps for f in light_fps], '{:.2f}')} x FFmpeg's own   cpu {_range(light_cpu)} ms")
     print(f"the pipeline around the search (end to end - detection only): {1000 / e2e_fps - 1000 / detect_fps:6.1f} ms "
           f"wall, {e2e_cpu - detect_cpu:6.1f} ms cpu a frame")
     for line in extra:
@@ -175,6 +192,12 @@ def main():
     print(f"\ntimeline of end to end (another run, {timeline.frames / timeline.wall:.1f} fps; stages of threads that "
           "overlap add up to more than the wall time):")
     print(timeline.table())
+
+
+def _range(xs: list[float], fmt: str = "{:.1f}") -> str:
+    """min / median / max."""
+    xs = sorted(xs)
+    return "/".join(fmt.format(x) for x in (xs[0], xs[len(xs) // 2], xs[-1]))
 
 
 def plain_decode_encode(src: Path, dest: Path, n: int | None = None) -> int:
