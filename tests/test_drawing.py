@@ -114,3 +114,36 @@ def test_failure_tile_and_sheet_shapes():
     assert sheet.shape == (62 + 4 + 3 * (230 + 4), max(640, 4 + 3 * 260), 3)
     with pytest.raises(ValueError, match="one shape"):
         failure_sheet([tile, tile[:-1]], "t")
+
+
+def test_draw_into_out():
+    image = _image()
+    boxes, labels = [[10, 10, 30, 30], [40, 5, 70, 50]], ["car 1", "car 2"]
+    expected = draw_boxes(image, boxes, labels=labels)
+    same = image.copy()
+    assert draw_boxes(same, boxes, labels=labels, out=same) is same  # in place
+    np.testing.assert_array_equal(same, expected)
+    other = np.zeros_like(image)
+    assert draw_boxes(image, boxes, labels=labels, out=other) is other
+    np.testing.assert_array_equal(other, expected)
+    assert np.all(image == 50)
+    found = Detections(np.array(boxes, float), track_id=np.array([1, 2]))
+    frame = image.copy()
+    assert draw_detections(frame, found, out=frame) is frame
+    np.testing.assert_array_equal(frame, draw_detections(image, found))
+    nothing = image.copy()
+    assert draw_detections(nothing, Detections(np.zeros((0, 4))), out=nothing) is nothing
+    assert np.all(nothing == 50)
+
+
+@pytest.mark.parametrize("make", [
+    lambda im: np.zeros((60, 81, 3), np.uint8),  # another shape
+    lambda im: np.zeros(im.shape, np.float32),
+    lambda im: np.zeros((60, 160, 3), np.uint8)[:, ::2],  # not contiguous
+    lambda im: np.frombuffer(bytes(im.size), np.uint8).reshape(im.shape),  # read-only
+    lambda im: im.tolist(),
+])
+def test_draw_refuses_a_bad_out(make):
+    image = _image()
+    with pytest.raises(ValueError, match="out must be"):
+        draw_boxes(image, [[1, 1, 5, 5]], out=make(image))

@@ -49,6 +49,13 @@ def test_estimate_needs_agreement():
     assert estimate_horizon(same[:2], min_frames=3) is None
 
 
+def test_estimate_on_several_workers_is_the_same():
+    frames = [road(0.5), road(0.505), road(0.62), road(0.495), np.full((720, 1280, 3), 90, np.uint8)]
+    assert estimate_horizon(frames, workers=3) == estimate_horizon(frames) == pytest.approx(0.5, abs=0.01)
+    assert estimate_horizon(iter(frames[2:3]), workers=2) == estimate_horizon(frames[2:3])
+    assert estimate_horizon([], workers=2) is None
+
+
 def _first_frames(path, n=25):
     from itertools import islice
 

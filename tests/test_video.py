@@ -457,6 +457,23 @@ def test_writer_copies_frames(tmp_path):
     assert back == pytest.approx(levels, abs=6)
 
 
+def test_writer_without_a_copy_takes_the_frames_as_they_are(tmp_path):
+    frames = moving_square_frames(6, 64, 48)
+    copied, taken = tmp_path / "copied.mp4", tmp_path / "taken.mp4"
+    with VideoWriter(copied, 25, (64, 48)) as writer:
+        for frame in frames:
+            writer.write(frame)
+    with VideoWriter(taken, 25, (64, 48)) as writer:
+        for i, frame in enumerate(frames):
+            # Not C-contiguous (every other frame): copied anyway.
+            writer.write(frame if i % 2 else np.asfortranarray(frame), copy=False)
+    assert [f.tolist() for f in read_frames(copied)] == [f.tolist() for f in read_frames(taken)]
+    odd = tmp_path / "odd.mp4"
+    with VideoWriter(odd, 25, (63, 47)) as writer:  # padded to even: copied into the padded frame
+        writer.write(frames[0][:47, :63], copy=False)
+    assert probe_video(odd).size == (64, 48)
+
+
 def test_colour_order_and_exact_ntsc_rate(tmp_path):
     colours = {"red": (255, 0, 0), "green": (0, 255, 0), "blue": (0, 0, 255), "grey": (128, 128, 128)}
     frames = [np.full((64, 96, 3), rgb, np.uint8) for rgb in colours.values()]

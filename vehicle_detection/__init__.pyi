@@ -21,6 +21,7 @@ from .io.formats import read_parquet, write_coco, write_mot, write_parquet
 from .io.images import list_images, read_image, write_image
 from .io.tables import read_boxes_csv, read_lanes_csv, write_boxes_csv, write_lanes_csv
 from .io.video import Encoding, VideoWriter, probe_video, read_frames
+from .io.timeline import Timeline
 
 # Camera, lanes and distances
 from .road.camera import Camera, calibrate

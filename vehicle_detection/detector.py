@@ -35,6 +35,7 @@ from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
 from .horizon import TOLERANCE, estimate_horizon
 from .io.images import as_image, as_rgb_uint8
+from .io.timeline import Timeline
 from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat
@@ -130,7 +131,9 @@ class Detector:
             return None
         return estimate
 
-    def for_footage(self, frames: Iterator[np.ndarray], tracker: Tracker) -> tuple[Detector, Iterator[np.ndarray]]:
+    def for_footage(
+        self, frames: Iterator[np.ndarray], tracker: Tracker, *, workers: int = 1
+    ) -> tuple[Detector, Iterator[np.ndarray]]:
         """The detector for a video's frames, and the frames (none consumed).
 
         The first time (for a fresh ``tracker``), the first :data:`HORIZON_FRAMES` frames are
@@ -144,6 +147,8 @@ class Detector:
         * with :attr:`estimates_horizon`, the horizon of the picture; the returned detector
           searches there, unless the estimate lies within
           :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
+
+        ``workers`` frames are measured at once (threads); the result is the same.
         """
         overlays, horizon = self.config.auto_overlays, self.estimates_horizon
         if not (overlays or horizon):
@@ -159,7 +164,8 @@ class Detector:
         if horizon and not state.horizon_searched:
             cut = state.overlays if overlays else None
             pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
-            state.horizon = self._moved_to(estimate_horizon(pictures, min_frames=min(3, len(first))))
+            estimate = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers)
+            state.horizon = self._moved_to(estimate)
             state.horizon_searched = True
         det = self.with_horizon(state.horizon)
         return (det.with_overlays(state.overlays) if overlays else det), frames
@@ -301,7 +307,12 @@ class Detector:
         return self._inside(tracker.update(self._tracker_input(windows), frame_shape), self._overlays)
 
     def track_frames(
-        self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2
+        self,
+        frames: Iterable[np.ndarray],
+        tracker: Tracker | None = None,
+        *,
+        workers: int = 2,
+        timeline: Timeline | None = None,
     ) -> Iterator[tuple[np.ndarray, Detections]]:
         """Like :meth:`track`, also yielding each frame: ``(frame, detections)`` pairs.
 
@@ -318,6 +329,9 @@ class Detector:
         With a search schedule (``plan.full_search_every > 1``), the frames between full
         searches are searched around the tracks live when the frame is submitted (the tracker
         then stands ``workers`` frames or so behind; ``track_margin`` covers the motion).
+
+        A :class:`~vehicle_detection.io.Timeline` is filled with the stages ``warmup``,
+        ``footage``, ``search_wait`` and ``track`` (in this thread) and ``search`` (in the pool).
         """
         tracker = tracker or self.new_tracker()
         lag = max(0, self.config.tracker.min_hits - 1)
@@ -327,7 +341,7 @@ class Detector:
             frame, _, found = held.popleft()
             return frame, found[np.argsort(found.track_id, kind="stable")]
 
-        with closing(self.steps(frames, tracker, workers)) as steps:
+        with closing(self.steps(frames, tracker, workers, timeline=timeline)) as steps:
             for frame, index, found, fill in steps:
                 for entry in held if len(fill) else ():
                     extra = fill.at_frame(entry[1])
@@ -340,7 +354,7 @@ class Detector:
             yield release()
 
     def steps(
-        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int
+        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int, *, timeline: Timeline | None = None
     ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
         """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
 
@@ -348,14 +362,30 @@ class Detector:
         the tracker's back-fill after the frame (boxes for earlier frames of newly confirmed
         tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
         (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
+        A ``timeline`` is filled as :meth:`track_frames` says.
         """
+        t = Timeline.now() if timeline is not None else 0.0
         compile_search_kernels(self.model)  # on a fresh install, on both cores
-        det, frames = self.for_footage(iter(frames), tracker)
+        if timeline is not None:
+            t = timeline.lap("warmup", t)
+        det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
+        if timeline is not None:
+            timeline.lap("footage", t)
+        search = det.windows if timeline is None else timeline.timed("search", det.windows)
 
         def advance(frame, future):
+            if timeline is None:
+                windows = future.result()
+            else:
+                t = Timeline.now()
+                windows = future.result()
+                t = timeline.lap("search_wait", t)
             index = tracker.state.frame_index
-            found = det.track_step(frame.shape, future.result(), tracker)
-            return frame, index, found, det._inside(tracker.backfill, det._overlays)
+            found = det.track_step(frame.shape, windows, tracker)
+            backfill = det._inside(tracker.backfill, det._overlays)
+            if timeline is not None:
+                timeline.lap("track", t)
+            return frame, index, found, backfill
 
         pending: deque = deque()
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
@@ -364,7 +394,7 @@ class Detector:
                     # this frame's index: the frames advanced plus those still searched
                     around = det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
-                    pending.append((frame, pool.submit(det.windows, *args)))
+                    pending.append((frame, pool.submit(search, *args)))
                     if len(pending) > workers:
                         yield advance(*pending.popleft())
                 while pending:

@@ -17,6 +17,7 @@ plan stays as written. Single images are searched where the plan says, unless a 
 from __future__ import annotations
 
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -93,7 +94,12 @@ def vanishing_row(frame: np.ndarray) -> float | None:
 
 
 def estimate_horizon(
-    frames: Iterable[np.ndarray], *, tolerance: float = TOLERANCE, min_share: float = 0.6, min_frames: int = 1
+    frames: Iterable[np.ndarray],
+    *,
+    tolerance: float = TOLERANCE,
+    min_share: float = 0.6,
+    min_frames: int = 1,
+    workers: int = 1,
 ) -> float | None:
     """The horizon most of ``frames`` agree on (:func:`vanishing_row`), or None.
 
@@ -108,13 +114,20 @@ def estimate_horizon(
         gave a row.
     min_frames : int
         Fewest frames that must give a row.
+    workers : int
+        Frames measured at once, in threads (OpenCV releases the GIL); the result is the same.
 
     Returns
     -------
     float or None
         The median row of the largest agreeing group, as a fraction of the frame height.
     """
-    rows = np.array([r for r in (vanishing_row(f) for f in frames) if r is not None])
+    if workers > 1:
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="horizon") as pool:
+            found = list(pool.map(vanishing_row, frames))
+    else:
+        found = [vanishing_row(f) for f in frames]
+    rows = np.array([r for r in found if r is not None])
     if len(rows) < max(1, min_frames):
         return None
     agree = np.abs(rows[:, None] - rows[None, :]) <= tolerance

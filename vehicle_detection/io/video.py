@@ -72,6 +72,7 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from ._files import atomic_output, check_output_path, input_file
+from .timeline import Timeline
 from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
@@ -400,7 +401,9 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
 # --------------------------------------------------------------------------------------------
 
 
-def read_frames(path: str | os.PathLike, *, prefetch: int = 4, threads: int = 0) -> Generator[np.ndarray, None, None]:
+def read_frames(
+    path: str | os.PathLike, *, prefetch: int = 4, threads: int = 0, timeline: Timeline | None = None
+) -> Generator[np.ndarray, None, None]:
     """Decode a video file frame by frame.
 
     The file is probed right away, so a missing or unreadable file raises here. Decoding starts
@@ -416,6 +419,9 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4, threads: int = 0)
     threads : int, default 0
         Decoder (slice) threads and colour conversion threads; 0 lets FFmpeg choose (one per
         core). A process that shares the cores with others gives its share.
+    timeline : Timeline, optional
+        Filled with the seconds of the stages ``decode``, ``to_rgb`` and ``decoder_wait`` (the
+        decoder thread) and ``read_wait`` (the consumer's wait for a frame).
 
     Yields
     ------
@@ -451,7 +457,7 @@ def read_frames(path: str | os.PathLike, *, prefetch: int = 4, threads: int = 0)
         raise ValueError(f"prefetch must be a positive integer, got {prefetch!r}")
     threads = _check_threads(threads)
     path, _, layout = _probe(path)
-    return _decode(path, layout, int(prefetch), threads)
+    return _decode(path, layout, int(prefetch), threads, timeline)
 
 
 def _check_threads(threads) -> int:
@@ -483,7 +489,13 @@ class _DecodeState:
 
 
 def _decoder_thread(
-    path: Path, layout: _Layout, q: queue.Queue, stop: threading.Event, state: _DecodeState, threads: int
+    path: Path,
+    layout: _Layout,
+    q: queue.Queue,
+    stop: threading.Event,
+    state: _DecodeState,
+    threads: int,
+    timeline: Timeline | None,
 ) -> None:
     n_read = 0
     try:
@@ -492,9 +504,17 @@ def _decoder_thread(
             _setup_decoder(stream, threads)
             scaler = VideoReformatter()
             try:
+                t = Timeline.now() if timeline is not None else 0.0
                 for frame in _decoded_frames(container, stream, path):
-                    if not _put(q, _to_rgb(frame, layout, scaler, threads), stop):
+                    if timeline is not None:
+                        t = timeline.lap("decode", t)
+                    rgb = _to_rgb(frame, layout, scaler, threads)
+                    if timeline is not None:
+                        t = timeline.lap("to_rgb", t)
+                    if not _put(q, rgb, stop):
                         return
+                    if timeline is not None:
+                        t = timeline.lap("decoder_wait", t)
                     n_read += 1
             except _Damage as damage:
                 state.error = _damaged(path, n_read, stream.frames or None, damage)
@@ -508,13 +528,15 @@ def _decoder_thread(
         _put(q, _END, stop)
 
 
-def _decode(path: Path, layout: _Layout, prefetch: int, threads: int) -> Generator[np.ndarray, None, None]:
+def _decode(
+    path: Path, layout: _Layout, prefetch: int, threads: int, timeline: Timeline | None
+) -> Generator[np.ndarray, None, None]:
     q: queue.Queue = queue.Queue(maxsize=prefetch)
     stop = threading.Event()
     state = _DecodeState()
     thread = threading.Thread(
         target=_decoder_thread,
-        args=(path, layout, q, stop, state, threads),
+        args=(path, layout, q, stop, state, threads, timeline),
         name="vehicle_detection-video-decoder",
         daemon=True,
     )
@@ -522,7 +544,12 @@ def _decode(path: Path, layout: _Layout, prefetch: int, threads: int) -> Generat
     n_yielded = 0
     try:
         while True:
-            item = q.get()
+            if timeline is None:
+                item = q.get()
+            else:
+                t = Timeline.now()
+                item = q.get()
+                timeline.lap("read_wait", t)
             if item is _END:
                 break
             n_yielded += 1
@@ -613,6 +640,9 @@ class VideoWriter:
         the same quality.
     threads : int, default 0
         Encoder threads and colour conversion threads; 0 lets FFmpeg choose.
+    timeline : Timeline, optional
+        Filled with the seconds of the stages ``write`` and ``write_wait`` (:meth:`write`, in
+        the caller's thread), ``to_yuv``, ``encode`` and ``encoder_wait`` (the encoder thread).
 
     Raises
     ------
@@ -661,6 +691,7 @@ class VideoWriter:
         crf: int = 23,
         preset: str = "veryfast",
         threads: int = 0,
+        timeline: Timeline | None = None,
     ) -> None:
         try:
             fps_value = float(fps)
@@ -697,6 +728,7 @@ class VideoWriter:
         self._thread: threading.Thread | None = None
         self._failure: BaseException | None = None
         self._used = False
+        self._timeline = timeline
 
     @property
     def frames_written(self) -> int:
@@ -775,10 +807,13 @@ class VideoWriter:
     def _encoder_thread(self) -> None:
         """Convert, encode and mux the queued frames; flush and close the file at the end marker."""
         scaler = VideoReformatter()
-        stream, container = self._stream, self._container
+        stream, container, timeline = self._stream, self._container, self._timeline
         pts = 0
+        t = Timeline.now() if timeline is not None else 0.0
         while True:
             item = self._queue.get()
+            if timeline is not None:
+                t = timeline.lap("encoder_wait", t)
             if item is _END:
                 break
             if self._failure is not None:
@@ -788,9 +823,14 @@ class VideoWriter:
                 yuv = scaler.reformat(
                     rgb, format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG", threads=self.threads
                 )
+                del rgb, item  # the frame's array is not needed after the conversion
+                if timeline is not None:
+                    t = timeline.lap("to_yuv", t)
                 yuv.pts = pts
                 pts += 1
                 container.mux(stream.encode(yuv))
+                if timeline is not None:
+                    t = timeline.lap("encode", t)
             except BaseException as exc:
                 self._failure = exc
         if self._failure is None:
@@ -798,6 +838,8 @@ class VideoWriter:
                 container.mux(stream.encode(None))  # the frames x264 still holds
                 container.close()  # writes the index, moved to the front (+faststart)
                 self._file.close()
+                if timeline is not None:
+                    timeline.lap("encode", t)
             except BaseException as exc:
                 self._failure = exc
 
@@ -829,14 +871,18 @@ class VideoWriter:
 
     # -- writing -----------------------------------------------------------------------------
 
-    def write(self, frame: np.ndarray) -> None:
+    def write(self, frame: np.ndarray, *, copy: bool = True) -> None:
         """Queue one frame for encoding.
 
         Parameters
         ----------
         frame : ndarray of uint8, shape (height, width, 3)
-            RGB pixels of exactly :attr:`size`. The frame is copied, so the caller may reuse
-            the array right away.
+            RGB pixels of exactly :attr:`size`.
+        copy : bool, default True
+            Copy the frame, so the caller may reuse the array right away. False hands the
+            array itself to the encoder thread when it can be encoded as it is (C-contiguous,
+            and of :attr:`output_size`; else it is copied anyway): the caller gives it up and
+            must not change it afterwards. That saves a copy of every frame.
 
         Raises
         ------
@@ -849,6 +895,8 @@ class VideoWriter:
         """
         if self._thread is None or not self._thread.is_alive():
             raise RuntimeError("VideoWriter.write() must be called inside its 'with' block")
+        timeline = self._timeline
+        t = Timeline.now() if timeline is not None else 0.0
         frame = np.asarray(frame)
         width, height = self.size
         if frame.shape != (height, width, 3):
@@ -860,10 +908,16 @@ class VideoWriter:
             raise ValueError(f"frame has dtype {frame.dtype}, expected uint8 RGB")
         if self._failure is not None:
             raise self._encode_error()
-        if self.output_size == self.size:
-            copy = np.array(frame, dtype=np.uint8, order="C", copy=True)
+        if self.output_size != self.size:
+            item = np.zeros((self.output_size[1], self.output_size[0], 3), np.uint8)
+            item[:height, :width] = frame
+        elif copy or not frame.flags.c_contiguous:
+            item = np.array(frame, dtype=np.uint8, order="C", copy=True)
         else:
-            copy = np.zeros((self.output_size[1], self.output_size[0], 3), np.uint8)
-            copy[:height, :width] = frame
-        self._queue.put(copy)
+            item = frame
+        if timeline is not None:
+            t = timeline.lap("write", t)
+        self._queue.put(item)
+        if timeline is not None:
+            timeline.lap("write_wait", t)
         self._frames_written += 1

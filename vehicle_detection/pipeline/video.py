@@ -24,6 +24,7 @@ from ..detector import Detector
 from ..errors import InputError, UsageError
 from ..io import check_outputs, output_batch, progress_bar, write_tables
 from ..io.images import check_frame_shape
+from ..io.timeline import Timeline
 from ..io.video import Encoding, VideoWriter, probe_video, read_frames
 from ..road.survey import Road, RoadSurvey
 from ..tracker import Tracker, TrackerState
@@ -60,16 +61,19 @@ def frame_range(frames: range | tuple[int | None, int | None] | None) -> tuple[i
 
 
 def _prepared(source: Iterable[np.ndarray], helper: ThreadPoolExecutor, survey: RoadSurvey, lanes_ahead: deque,
-              ahead: int = 3) -> Iterator[np.ndarray]:
+              ahead: int = 3, timeline: Timeline | None = None) -> Iterator[np.ndarray]:
     """Frames undistorted in ``helper``, ``ahead`` frames in advance.
 
     With lanes, the lane of each frame is found in the same (single) helper thread, so in frame
     order; its future is appended to ``lanes_ahead`` as the frame is yielded.
     """
+    undistort, find_lane = survey.undistort, survey.find_lane
+    if timeline is not None:
+        undistort, find_lane = timeline.timed("prepare", undistort), timeline.timed("prepare", find_lane)
 
     def work(frame):
-        frame = survey.undistort(frame)
-        return frame, helper.submit(survey.find_lane, frame) if survey.finds_lanes else None
+        frame = undistort(frame)
+        return frame, helper.submit(find_lane, frame) if survey.finds_lanes else None
 
     pending: deque = deque()
     for frame in source:
@@ -128,6 +132,7 @@ def process_video(
     progress: bool = True,
     tracker: Tracker | None = None,
     threads: int | None = None,
+    timeline: Timeline | None = None,
 ) -> Detections:
     """Detect and track vehicles through a video; write the annotated video and the tables.
 
@@ -166,6 +171,11 @@ def process_video(
     threads : int, optional
         The run's share of the cores: frames searched at once, and the codec's threads. None:
         :data:`SEARCH_WORKERS` frames at once, and FFmpeg chooses its threads.
+    timeline : Timeline, optional
+        Filled with the seconds each stage of the run took, from every thread (decode, colour
+        conversion, search, tracking, drawing, encoding, and the waits on the queues between
+        them), the frames and the wall time: see :class:`~vehicle_detection.io.Timeline`.
+        Without it nothing is measured.
 
     Returns
     -------
@@ -174,7 +184,7 @@ def process_video(
         with ``distance_m`` and ``relative_speed_mps`` when the road plane is known.
     """
     return run_video(path, output, detector=detector, frames=frames, road=road, encoding=encoding, tables=tables,
-                     overwrite=overwrite, progress=progress, tracker=tracker, threads=threads)[0]
+                     overwrite=overwrite, progress=progress, tracker=tracker, threads=threads, timeline=timeline)[0]
 
 
 def run_video(
@@ -190,6 +200,7 @@ def run_video(
     progress: bool = True,
     tracker: Tracker | None = None,
     threads: int | None = None,
+    timeline: Timeline | None = None,
 ) -> tuple[Detections, list[tuple[int, float | None, float | None]]]:
     """:func:`process_video`, returning the lane of each frame as well.
 
@@ -212,12 +223,14 @@ def run_video(
         raise ValueError(f"the tracker continues at frame {tracker.state.frame_index}, not at start={start}")
     survey = road.survey(info.fps or 25.0)
     encoding, codec = encoding or Encoding(), threads or 0
+    started = Timeline.now() if timeline is not None else 0.0
     with output_batch(), ExitStack() as stack:
-        decoded = stack.enter_context(closing(read_frames(path, threads=codec)))
+        decoded = stack.enter_context(closing(read_frames(path, threads=codec, timeline=timeline)))
         writer = None
         if output is not None:
             writer = stack.enter_context(VideoWriter(output, info.fps, info.size, overwrite=overwrite, inputs=[path],
-                                                     crf=encoding.crf, preset=encoding.preset, threads=codec))
+                                                     crf=encoding.crf, preset=encoding.preset, threads=codec,
+                                                     timeline=timeline))
         bar = stack.enter_context(progress_bar(_n_frames(info.n_frames, start, end), path.name, enabled=progress))
         source = decoded if (start == 0 and end is None) else itertools.islice(decoded, start, end)
         lanes_ahead: deque = deque()
@@ -225,20 +238,31 @@ def run_video(
             # Undistortion and lane finding run in a helper thread, in frame order, a few frames
             # ahead of the search (OpenCV releases the GIL), not on this thread's path.
             helper = stack.enter_context(ThreadPoolExecutor(max_workers=1, thread_name_prefix="lanes"))
-            source = _prepared(source, helper, survey, lanes_ahead)
+            source = _prepared(source, helper, survey, lanes_ahead, timeline=timeline)
         found = []
-        for index, (frame, boxes) in enumerate(detector.track_frames(source, tracker, workers=threads or SEARCH_WORKERS),
-                                               start=start):
+        tracked = detector.track_frames(source, tracker, workers=threads or SEARCH_WORKERS, timeline=timeline)
+        for index, (frame, boxes) in enumerate(tracked, start=start):
+            t = Timeline.now() if timeline is not None else 0.0
             boxes = survey.measure(boxes)
             found.append(boxes)
             lane = lanes_ahead.popleft().result() if survey.finds_lanes else None
             survey.record(index, lane)
+            if timeline is not None:
+                t = timeline.lap("track", t)
             if writer is not None:
-                writer.write(draw_detections(survey.draw(frame, lane), boxes))
+                # The frame is this run's own (decoded, or undistorted, here) and its search is
+                # done: the boxes are drawn on it, and the writer takes it without a copy.
+                picture = survey.draw(frame, lane)
+                drawn = draw_detections(picture, boxes, out=picture)
+                if timeline is not None:
+                    timeline.lap("draw", t)
+                writer.write(drawn, copy=False)
             if bar is not None:
                 bar.update()
         table = survey.complete(Detections.concatenate(found))
         write_tables(tables, table, name=path.name, lanes=survey.lane_rows, overwrite=overwrite, inputs=[path])
+    if timeline is not None:
+        timeline.frames, timeline.wall = len(found), Timeline.now() - started
     return table, survey.lane_rows
 
 

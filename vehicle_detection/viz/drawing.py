@@ -1,6 +1,7 @@
 """Drawing boxes and tracked vehicles on RGB frames, and contact sheets of an evaluation's failures.
 
-Every image here is RGB ``uint8`` of shape ``(H, W, 3)``; nothing is modified in place.
+Every image here is RGB ``uint8`` of shape ``(H, W, 3)``; nothing is modified in place, except
+the ``out`` array :func:`draw_boxes` and :func:`draw_detections` are given.
 """
 
 from __future__ import annotations
@@ -53,8 +54,9 @@ def draw_boxes(
     color: Sequence[int] = BOX_COLOR,
     thickness: int = 3,
     labels: Sequence[str | int] | None = None,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Draw rectangles, optionally labelled, on a copy of an image.
+    """Draw rectangles, optionally labelled, on a copy of an image (or on ``out``).
 
     Parameters
     ----------
@@ -72,17 +74,22 @@ def draw_boxes(
     labels : sequence of str or int, optional
         One label per box (e.g. track ids), written on a filled tag of ``color`` above the box's
         top-left corner (inside the box when there is no room above).
+    out : ndarray of uint8, shape (H, W, 3), optional
+        Where to draw: a C-contiguous, writeable array of the image's shape, which gets the
+        image and the boxes. ``out=image`` draws in place, without a copy. By default a new
+        array.
 
     Returns
     -------
     ndarray of uint8, shape (H, W, 3)
-        A new C-contiguous array.
+        A new C-contiguous array, or ``out``.
 
     Raises
     ------
     ValueError
         If the image is not ``uint8`` of shape ``(H, W, 3)``, the boxes are malformed, ``labels``
-        does not have one entry per box, or ``color``/``thickness`` are invalid.
+        does not have one entry per box, ``color``/``thickness`` are invalid, or ``out`` is not
+        as said.
     """
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
@@ -99,7 +106,7 @@ def draw_boxes(
         if len(labels) != len(box_arr):
             raise ValueError(f"labels has {len(labels)} entries for {len(box_arr)} boxes")
 
-    out = np.array(image, dtype=np.uint8, order="C", copy=True)
+    out = _canvas(image, out)
     h, w = out.shape[:2]
     # Keep coordinates within cv2's int range but well outside the image, so clipping is invisible.
     margin = 2 * thickness + 2
@@ -135,7 +142,27 @@ def draw_boxes(
     return out
 
 
-def draw_detections(image: np.ndarray, detections: Detections, *, color: Sequence[int] = BOX_COLOR, thickness: int = 4) -> np.ndarray:
+def _canvas(image: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+    """The array to draw on: a copy of ``image``, or ``out`` holding it."""
+    if out is None:
+        return np.array(image, dtype=np.uint8, order="C", copy=True)
+    if not (isinstance(out, np.ndarray) and out.dtype == np.uint8 and out.shape == image.shape
+            and out.flags.c_contiguous and out.flags.writeable):
+        raise ValueError(f"out must be a writeable, C-contiguous uint8 array of shape {image.shape}; got "
+                         + (f"{out.dtype} of shape {out.shape}" if isinstance(out, np.ndarray) else type(out).__name__))
+    if out is not image:
+        np.copyto(out, image)
+    return out
+
+
+def draw_detections(
+    image: np.ndarray,
+    detections: Detections,
+    *,
+    color: Sequence[int] = BOX_COLOR,
+    thickness: int = 4,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
     """A copy of an RGB frame with each detection's box drawn, labelled ``car <id>`` when tracked.
 
     With a ``distance_m`` column in ``detections.data``, the label also gives the distance
@@ -146,8 +173,8 @@ def draw_detections(image: np.ndarray, detections: Detections, *, color: Sequenc
     image : ndarray of uint8, shape (H, W, 3)
     detections : Detections
         The boxes of this frame.
-    color, thickness
-        As for :func:`draw_boxes`.
+    color, thickness, out
+        As for :func:`draw_boxes` (``out=image`` draws on the frame itself).
 
     Returns
     -------
@@ -160,7 +187,7 @@ def draw_detections(image: np.ndarray, detections: Detections, *, color: Sequenc
             " ".join(filter(None, [labels[i] if labels else "", f"{d:.0f} m" if np.isfinite(d) else ""]))
             for i, d in enumerate(dist.tolist())
         ]
-    return draw_boxes(image, detections.xyxy, color=color, thickness=thickness, labels=labels)
+    return draw_boxes(image, detections.xyxy, color=color, thickness=thickness, labels=labels, out=out)
 
 
 # --------------------------------------------------------------------------------------------

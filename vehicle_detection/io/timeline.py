@@ -1,0 +1,152 @@
+"""Where a video run's time goes: seconds per stage, from every thread of the run.
+
+A :class:`Timeline` is an optional argument of :func:`~vehicle_detection.pipeline.process_video`
+(and of the pieces it is made of: :func:`~vehicle_detection.io.read_frames`,
+:class:`~vehicle_detection.io.VideoWriter`, :meth:`~vehicle_detection.detector.Detector.track_frames`).
+Without one, those functions measure nothing (one ``None`` check per stage and frame); with one,
+each stage adds the seconds it took, frame by frame, with :func:`time.perf_counter`.
+
+The stages, in the order of :data:`STAGES`, and the thread each runs in:
+
+======================  ===========  ======================================================
+stage                   thread       what
+======================  ===========  ======================================================
+``decode``              decoder      demux and decode one frame (FFmpeg)
+``to_rgb``              decoder      convert it to RGB (and turn it upright)
+``decoder_wait``        decoder      wait for room in the queue to the consumer
+``read_wait``           main         wait for the decoder's next frame
+``warmup``              main         load (or compile) the search kernels, once a run
+``footage``             main         measure the first frames (horizon, black bars), once
+                                     a run; their ``read_wait`` is part of it
+``prepare``             helper       undistort, find lanes (only with a camera)
+``search``              search pool  the sliding-window search (:meth:`Detector.windows`)
+``search_wait``         main         wait for the search of the next frame in order
+``track``               main         advance the tracker, measure distances
+``draw``                main         draw lanes and boxes on the frame
+``write``               main         hand the frame to the encoder (a copy, if any)
+``write_wait``          main         wait for room in the queue to the encoder
+``to_yuv``              encoder      convert RGB to YUV 4:2:0 (BT.709)
+``encode``              encoder      encode (x264) and mux
+``encoder_wait``        encoder      wait for the next frame to encode
+======================  ===========  ======================================================
+
+The waits are the time a thread was blocked on its queue (or future), so a stage that keeps
+the others waiting shows up as their waits.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+__all__ = ["Timeline", "STAGES"]
+
+#: Every stage, in pipeline order, with the thread it runs in.
+STAGES: dict[str, str] = {
+    "decode": "decoder",
+    "to_rgb": "decoder",
+    "decoder_wait": "decoder",
+    "read_wait": "main",
+    "warmup": "main",
+    "footage": "main",
+    "prepare": "helper",
+    "search": "search",
+    "search_wait": "main",
+    "track": "main",
+    "draw": "main",
+    "write": "main",
+    "write_wait": "main",
+    "to_yuv": "encoder",
+    "encode": "encoder",
+    "encoder_wait": "encoder",
+}
+
+
+class Timeline:
+    """Seconds spent in each stage of a video run, added up over its frames, from any thread.
+
+    Attributes
+    ----------
+    frames : int
+        Frames the run processed (set by :func:`~vehicle_detection.pipeline.process_video`;
+        0 until then).
+    wall : float
+        Seconds the run took from the first frame decoded to the last one encoded (set by
+        :func:`~vehicle_detection.pipeline.process_video`).
+
+    Examples
+    --------
+    >>> timeline = Timeline()  # doctest: +SKIP
+    >>> process_video("test_video.mp4", "out.mp4", timeline=timeline)  # doctest: +SKIP
+    >>> print(timeline.table())  # doctest: +SKIP
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._seconds: dict[str, float] = {}
+        self._counts: dict[str, int] = {}
+        self.frames = 0
+        self.wall = 0.0
+
+    @staticmethod
+    def now() -> float:
+        """The clock every stage is measured with (:func:`time.perf_counter`)."""
+        return time.perf_counter()
+
+    def add(self, stage: str, seconds: float) -> None:
+        """Add ``seconds`` to ``stage`` (one call per frame, or several)."""
+        with self._lock:
+            self._seconds[stage] = self._seconds.get(stage, 0.0) + seconds
+            self._counts[stage] = self._counts.get(stage, 0) + 1
+
+    def lap(self, stage: str, since: float) -> float:
+        """Add the time from ``since`` (:meth:`now`) to now to ``stage``; return now."""
+        now = time.perf_counter()
+        self.add(stage, now - since)
+        return now
+
+    def timed(self, stage: str, function):
+        """``function``, adding the seconds of each call to ``stage``."""
+
+        def timed(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.lap(stage, t)
+
+        return timed
+
+    def seconds(self, stage: str) -> float:
+        """Seconds spent in ``stage`` in all (0.0 if it never ran)."""
+        return self._seconds.get(stage, 0.0)
+
+    def count(self, stage: str) -> int:
+        """Times ``stage`` was measured."""
+        return self._counts.get(stage, 0)
+
+    @property
+    def stages(self) -> list[str]:
+        """The stages measured, in :data:`STAGES` order (others after, in the order first seen)."""
+        known = [s for s in STAGES if s in self._seconds]
+        return known + [s for s in self._seconds if s not in STAGES]
+
+    def per_frame_ms(self) -> dict[str, float]:
+        """Milliseconds per frame of each stage measured: its seconds over :attr:`frames`."""
+        n = max(self.frames, 1)
+        return {s: 1000.0 * self._seconds[s] / n for s in self.stages}
+
+    def table(self) -> str:
+        """The stages as a small text table: thread, ms a frame, share of the wall time."""
+        n = max(self.frames, 1)
+        wall_ms = 1000.0 * self.wall / n
+        lines = [f"{'stage':<13} {'thread':<8} {'ms/frame':>9} {'% wall':>7}"]
+        for stage, ms in self.per_frame_ms().items():
+            share = f"{100.0 * ms / wall_ms:6.0f}%" if wall_ms > 0 else "      -"
+            lines.append(f"{stage:<13} {STAGES.get(stage, '?'):<8} {ms:9.2f} {share}")
+        fps = f"{self.frames / self.wall:.1f} fps" if self.wall > 0 else "-"
+        lines.append(f"{'wall':<13} {'':<8} {wall_ms:9.2f}    100%   ({self.frames} frames, {fps})")
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"Timeline(frames={self.frames}, wall={self.wall:.3f}, stages={len(self._seconds)})"
