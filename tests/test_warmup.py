@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 
 import numpy as np
 
@@ -37,3 +38,23 @@ def test_searching_after_the_warm_up_gives_the_same_windows(default_model, test_
     np.testing.assert_array_equal(before.xyxy, after.xyxy)
     np.testing.assert_array_equal(before.score, after.score)
 
+
+
+def test_a_search_compiles_each_kernel_for_one_signature():
+    """A strided view or another dtype would make numba compile a kernel again (seconds of a cold start)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, vehicle_detection as vd\n"
+        "from vehicle_detection import search as S, features as F\n"
+        "from vehicle_detection.io.images import read_image\n"
+        "d = vd.Detector()\n"
+        "for name in ('test1.jpg', 'test4.jpg'):\n"
+        "    S.search(read_image('test_images/' + name), d.model)\n"
+        "kernels = [S._score_hog, S._score_colour, S._colour_sums, S._window_products, F._region_variants, S._cell_squares]\n"
+        "print([len(k.signatures) for k in kernels])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "[1, 1, 1, 1, 1, 1]", out.stdout + out.stderr

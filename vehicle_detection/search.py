@@ -748,7 +748,8 @@ def _two_stage_margins(feats: _BandFeatures, model: VehicleClassifier, band: _Ba
     first = np.zeros((len(band.rows), len(band.cols)), bool)
     first[::2, ::2] = True
     margins = np.full(first.shape, -np.inf)
-    margins[::2, ::2] = _margins(feats, model, band.rows[::2], band.cols[::2])
+    # contiguous copies: a strided view would make numba compile the kernels once more for it
+    margins[::2, ::2] = _margins(feats, model, np.ascontiguousarray(band.rows[::2]), np.ascontiguousarray(band.cols[::2]))
     # The second stage: the windows next to a first-stage window within the margin, scored by
     # the same kernels a band row at a time (the cell sums of squares are computed once).
     second = _next_to(margins > threshold - margin) & ~first
