@@ -755,7 +755,7 @@ def boxes_grid_figure(items: Sequence[tuple[str, np.ndarray, np.ndarray]], *, nc
     fig, axes = _grid(nrows, ncols, 4.2, _panel_height(4.2, items[0][1].shape, rows) + 0.15)
     for ax, item in zip(axes.flat, items):
         name, frame, boxes = item
-        _frame_ax(ax, frame, title=f"{name}: {len(boxes)} vehicles")
+        _frame_ax(ax, frame, title=f"{name}: {len(boxes)} vehicle{'' if len(boxes) == 1 else 's'}")
         _boxes(ax, boxes, lw=2.2)
         _view(ax, frame.shape[1], frame.shape[0], rows)
     for ax in list(axes.flat)[len(items):]:
