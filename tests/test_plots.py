@@ -209,7 +209,7 @@ def test_detection_stages_and_boxes_grid(tmp_path):
     assert fig.axes[0].texts[-1].get_text() == "3 windows"
     png_ok(plots.save_figure(fig, tmp_path / "stages.png"))
     fig = plots.boxes_grid_figure([("a", f, result.xyxy), ("b", f, np.zeros((0, 4)))], ncols=3)
-    assert [ax.get_title() for ax in fig.axes[:2]] == ["a: 1 vehicles", "b: 0 vehicles"]
+    assert [ax.get_title() for ax in fig.axes[:2]] == ["a: 1 vehicle", "b: 0 vehicles"]
 
 
 def test_video_figures(tmp_path):
