@@ -424,8 +424,9 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
     # One cell at a time (small arrays that stay in the fastest cache): its histogram, and its
     # change when its top/bottom/left/right edge is a window border (d 0-3) plus the extra
     # change of its top-left/top-right/bottom-left/bottom-right pixel at a corner (d 4-7).
-    cell = np.empty(nb)
-    d = np.empty((8, nb))
+    # Bin ``nb`` collects the votes counted in no bin, without a branch (not copied out).
+    cell = np.empty(nb + 1)
+    d = np.empty((8, nb + 1))
     for k in range(n_ch):
         ch = channels[k]
         v = variants[k]
@@ -448,8 +449,7 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
                             gy = np.int32(image[y + 1, x, ch]) - np.int32(image[y - 1, x, ch])
                         m = math.sqrt(gx * gx + gy * gy)
                         b = lut[gy + 255, gx + 255]
-                        if b < nb:
-                            cell[b] += m
+                        cell[b] += m
                         left = rx == 0
                         right = rx == ppc - 1
                         if not (top or bottom or left or right):
@@ -457,29 +457,22 @@ def _region_variants(image, channels, lut, ppc, nb, variants):
                         if top or bottom:
                             e = 0 if top else 1
                             bh = lut[255, gx + 255]
-                            if bh < nb:
-                                d[e, bh] += abs(gx)
-                            if b < nb:
-                                d[e, b] -= m
+                            d[e, bh] += abs(gx)
+                            d[e, b] -= m
                         if left or right:
                             e = 2 if left else 3
                             bv = lut[gy + 255, 255]
-                            if bv < nb:
-                                d[e, bv] += abs(gy)
-                            if b < nb:
-                                d[e, b] -= m
+                            d[e, bv] += abs(gy)
+                            d[e, b] -= m
                         if (top or bottom) and (left or right):
                             # Both gradients zeroed: the vote is 0. The two edge changes sum to
                             # (mh - m) + (mv - m); this brings the total to -m.
                             e = (4 if left else 5) if top else (6 if left else 7)
                             bh = lut[255, gx + 255]
                             bv = lut[gy + 255, 255]
-                            if b < nb:
-                                d[e, b] += m
-                            if bh < nb:
-                                d[e, bh] -= abs(gx)
-                            if bv < nb:
-                                d[e, bv] -= abs(gy)
+                            d[e, b] += m
+                            d[e, bh] -= abs(gx)
+                            d[e, bv] -= abs(gy)
                 for o in range(nb):
                     c = cell[o]
                     t = c + d[0, o]
