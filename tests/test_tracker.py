@@ -109,6 +109,9 @@ def test_config_defaults():
         ("aspect_range", (0.0, 4.0)),
         ("aspect_range", (4.0, 0.3)),
         ("score_gain", -1.0),
+        ("motion", -0.1),
+        ("motion", 1.5),
+        ("motion", float("nan")),
     ],
 )
 def test_config_rejects_bad_values(field, value):
@@ -434,3 +437,84 @@ def test_window_inset_moves_the_heat_inside_each_window():
         _TrackerConfig(window_inset=(0.0, 0.5, 0.0, 0.0))
     with pytest.raises(ValueError, match="window_inset"):
         _TrackerConfig(window_inset=(0.0, 0.1))
+
+
+# --------------------------------------------------------------------------------------------
+# Motion model (TrackerConfig.motion)
+# --------------------------------------------------------------------------------------------
+def moving_car(f: int, speed: int = 8) -> np.ndarray:
+    """A car box moving ``speed`` px a frame to the right (8: it stays on the 8-px heat cells)."""
+    return np.array([200 + speed * f, 400, 328 + speed * f, 496])
+
+
+def follow(motion: float, frames: int = 40) -> tuple[Tracker, Track]:
+    """One window on the moving car a frame; decay 0, so each blob is that frame's window."""
+    tr = Tracker(TrackerConfig(decay=0.0, threshold=0.5, smoothing=0.5, motion=motion))
+    for f in range(frames):
+        out = update(tr, [moving_car(f)], [1.0])
+    (t,) = out
+    return tr, t
+
+
+def test_a_moving_average_lags_a_moving_car_and_the_motion_model_does_not():
+    # A moving average with weight s lags a car moving v px a frame by v (1 - s) / s: 8 px here.
+    _, t = follow(motion=0.0)
+    np.testing.assert_allclose(t.box - moving_car(39), [-8, 0, -8, 0], atol=1e-6)
+    np.testing.assert_array_equal(t.velocity, 0)
+    # With the motion model the velocity is learned and the lag dies out.
+    _, t = follow(motion=0.3)
+    np.testing.assert_allclose(t.box - moving_car(39), 0, atol=0.05)
+    np.testing.assert_allclose(t.velocity, [8, 0, 8, 0], atol=0.05)
+
+
+def test_a_lost_car_coasts_along_its_velocity_then_is_retired():
+    tr, last = follow(motion=0.3)
+    for k in range(1, 6):
+        (t,) = update(tr, [], [])
+        assert (t.track_id, t.misses) == (last.track_id, k)
+        np.testing.assert_allclose(t.box - last.box, [8 * k, 0, 8 * k, 0], atol=0.5)
+    assert update(tr, [], []) == []
+
+
+def test_the_prediction_keeps_a_fast_car_matched_to_its_track():
+    # 40 px a frame on a 128 px car, match_iou 0.5: the blob soon overlaps the lagging moving
+    # average too little and opens new tracks, none confirmed; the predicted box stays on it.
+    def run(motion):
+        tr = Tracker(TrackerConfig(decay=0.0, threshold=0.5, smoothing=0.5, motion=motion, match_iou=0.5))
+        reported = set()
+        for f in range(20):
+            reported |= {t.track_id for t in update(tr, [moving_car(f, speed=40)], [1.0])}
+        return tr.state.next_id, reported
+
+    opened, reported = run(0.0)
+    assert opened > 5 and not reported
+    assert run(0.5) == (1, {0})
+
+
+def test_a_prediction_that_leaves_no_box_stops_the_track():
+    tr, t = follow(motion=0.3, frames=6)
+    track = tr.state.tracks[0]
+    track.velocity = np.array([0.0, 0.0, -500.0, 0.0])  # would shrink the box to nothing
+    (t,) = update(tr, [], [])
+    np.testing.assert_array_equal(t.box, track.box)
+    assert t.box[2] > t.box[0] and not t.velocity.any()
+
+
+def test_the_motion_model_continues_across_chunks():
+    cfg = TrackerConfig(motion=0.3)
+    frames = scenario()
+    whole = Tracker(cfg)
+    expected = [snapshot(update(whole, b, s, SHAPE)) for b, s in frames]
+    first = Tracker(cfg)
+    got = [snapshot(update(first, b, s, SHAPE)) for b, s in frames[:12]]
+    assert any(t.velocity.any() for t in first.state.tracks)
+    second = Tracker(cfg, state=first.state)
+    update(first, car_windows([10, 400, 138, 496]), np.ones(4), SHAPE)  # no effect on second
+    got += [snapshot(update(second, b, s, SHAPE)) for b, s in frames[12:]]
+    assert got == expected
+
+
+def test_settings_saved_before_the_motion_model_load_without_it():
+    d = _TrackerConfig().to_dict()
+    del d["motion"]
+    assert _TrackerConfig.from_dict(d).motion == 0.0

@@ -47,7 +47,7 @@ def _is_real(value: Any) -> bool:
 
 
 #: Fields added after model files were first saved; older files load with them off (0).
-_ADDED_FIELDS = ("cluster_iou", "box_vote")
+_ADDED_FIELDS = ("cluster_iou", "box_vote", "motion")
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,16 @@ class TrackerConfig:
         >= 0.
     smoothing : float, default 0.5
         Weight of the new blob box in a matched track's box,
-        ``box = (1 - smoothing) * box + smoothing * blob``, in ``(0, 1]`` (1: no smoothing).
+        ``box = (1 - smoothing) * predicted + smoothing * blob``, in ``(0, 1]`` (1: no
+        smoothing).
+    motion : float, default 0.0
+        Gain of the tracks' constant-velocity motion model, in ``[0, 1]``: each track keeps a
+        velocity (pixels a frame of each box edge), predicts its box one frame ahead
+        (``predicted = box + velocity``) before it is matched, and corrects the velocity by
+        ``motion`` times the blob's distance from the prediction. Together with ``smoothing``
+        (the position gain) this is an alpha-beta filter, the steady state of a Kalman filter
+        of constant velocity (as SORT tracks with). 0 turns it off: a track's box is a moving
+        average of its blobs and lags behind a car that moves in the frame.
     match_iou : float, default 0.2
         Smallest IoU at which a blob can be matched to a track, in ``(0, 1]``.
     min_size : (float, float), default (32, 32)
@@ -118,6 +127,7 @@ class TrackerConfig:
     min_hits: int = 3
     max_misses: int = 5
     smoothing: float = 0.5
+    motion: float = 0.0
     match_iou: float = 0.2
     min_size: tuple[float, float] = (32, 32)
     aspect_range: tuple[float, float] = (0.3, 4.0)
@@ -144,6 +154,7 @@ class TrackerConfig:
         real("decay", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
         real("threshold", lambda v: v >= 0.0, "a finite number >= 0")
         real("smoothing", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
+        real("motion", lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
         real("match_iou", lambda v: 0.0 < v <= 1.0, "a number in (0, 1]")
         real("score_gain", lambda v: v >= 0.0, "a finite number >= 0")
         real("peak_fraction", lambda v: 0.0 <= v < 1.0, "a number in [0, 1)")
@@ -173,7 +184,8 @@ class TrackerConfig:
     @classmethod
     def from_dict(cls, d: Any) -> TrackerConfig:
         """The inverse of :meth:`to_dict`; unknown or missing fields raise ``ValueError``, except
-        ``cluster_iou`` and ``box_vote``, which settings saved before them lack (they load off)."""
+        ``cluster_iou``, ``box_vote`` and ``motion``, which settings saved before them lack (they
+        load off)."""
         names = {f.name for f in dataclasses.fields(cls)}
         if isinstance(d, dict):
             d = {**{k: 0.0 for k in _ADDED_FIELDS}, **d}
@@ -206,6 +218,8 @@ class Track:
         Unique within a tracker (until :meth:`Tracker.reset`), increasing in order of creation.
     box : ndarray of float64, shape (4,)
         Smoothed ``[x1, y1, x2, y2]`` in frame pixels (x2, y2 exclusive).
+    velocity : ndarray of float64, shape (4,)
+        Change of each box edge a frame (:attr:`TrackerConfig.motion`; zero without it).
     hits : int
         Frames in which a blob was matched to the track, including the one that opened it.
     misses : int
@@ -234,6 +248,7 @@ class Track:
     score: float = 0.0
     history: list = field(default_factory=list)
     backfill: list = field(default_factory=list)
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
     def int_box(self) -> np.ndarray:
         """The box rounded to whole pixels (halves up), ``int64`` shape (4,)."""
@@ -251,6 +266,7 @@ class Track:
             score=self.score,
             history=[(i, b.copy()) for i, b in self.history],
             backfill=[(i, b.copy()) for i, b in self.backfill],
+            velocity=np.array(self.velocity, dtype=np.float64, copy=True),
         )
 
 
@@ -331,6 +347,21 @@ def _check_state(state: TrackerState, config: TrackerConfig) -> TrackerState:
     return state
 
 
+def _predict(track: Track, frame_shape: tuple[int, int] | None) -> np.ndarray:
+    """The track's box one frame ahead at its velocity, kept inside the frame; its box when that
+    would leave no box (a car shrinking or leaving faster than the filter can follow)."""
+    if not track.velocity.any():
+        return track.box
+    box = track.box + track.velocity
+    if frame_shape is not None:
+        h, w = frame_shape
+        box = np.clip(box, 0.0, [w, h, w, h])
+    if box[2] - box[0] < 1.0 or box[3] - box[1] < 1.0:
+        track.velocity = np.zeros(4)
+        return track.box
+    return box
+
+
 def _int_boxes(boxes: list) -> np.ndarray:
     """Whole-pixel boxes, halves rounded up (the tracker's float boxes as reported)."""
     return np.floor(np.asarray(boxes, dtype=np.float64).reshape(-1, 4) + 0.5).astype(np.int64)
@@ -368,14 +399,16 @@ class Tracker:
     IoU (:func:`scipy.optimize.linear_sum_assignment`), as in
     :func:`vehicle_detection.metrics.detection.match_frame`.
 
-    **Life cycle.** A matched track takes the blob's box into its moving average, ``hits += 1``,
-    ``misses = 0``, and is confirmed once ``hits >= min_hits``. An unmatched track keeps its
-    box and ``misses += 1``; it is retired when ``misses > max_misses``. An unmatched candidate
+    **Life cycle.** Tracks are matched by their boxes predicted one frame ahead
+    (:attr:`TrackerConfig.motion`; without it, their boxes). A matched track takes the blob's
+    box into its moving average with the prediction, ``hits += 1``, ``misses = 0``, and is
+    confirmed once ``hits >= min_hits``. An unmatched track coasts to its predicted box and
+    ``misses += 1``; it is retired when ``misses > max_misses``. An unmatched candidate
     opens a new unconfirmed track (``hits = 1``) with the next id. Every live track's ``age``
     grows by one per frame.
 
     **Reported tracks.** :meth:`update` returns the confirmed live tracks: those matched this
-    frame and those coasting on their last box for at most ``max_misses`` frames, so a car the
+    frame and those coasting for at most ``max_misses`` frames, so a car the
     detector loses for a few frames keeps its box and id. A one-frame false positive is never
     reported when ``min_hits >= 2``: its blob's later frames hold no current heat, so they are
     not candidates.
@@ -516,12 +549,16 @@ class Tracker:
         tracks = st.tracks
         matched_track = np.zeros(len(tracks), dtype=bool)
         matched_cand = np.zeros(len(cand), dtype=bool)
+        # Each track's box one frame ahead (its box itself without a motion model).
+        predicted = [_predict(t, st.frame_shape) for t in tracks]
         if tracks and len(cand):
-            rows, cols = match_boxes(box_iou(np.stack([t.box for t in tracks]), cand), cfg.match_iou)
+            rows, cols = match_boxes(box_iou(np.stack(predicted), cand), cfg.match_iou)
             s = cfg.smoothing
             for r, c in zip(rows.tolist(), cols.tolist()):
                 t = tracks[r]
-                t.box = (1.0 - s) * t.box + s * cand[c]
+                t.box = (1.0 - s) * predicted[r] + s * cand[c]
+                if cfg.motion > 0:
+                    t.velocity = t.velocity + cfg.motion * (cand[c] - predicted[r])
                 t.hits += 1
                 t.misses = 0
                 t.score = float(peaks[c])
@@ -536,13 +573,14 @@ class Tracker:
                 matched_cand[c] = True
 
         kept: list[Track] = []
-        for t, matched in zip(tracks, matched_track.tolist()):
+        for t, matched, ahead in zip(tracks, matched_track.tolist(), predicted):
             t.age += 1
             if not matched:
                 t.backfill = []
                 t.misses += 1
                 if t.misses > cfg.max_misses:
                     continue
+                t.box = ahead  # coasting: where the motion model says (its box without one)
             kept.append(t)
         next_id = st.next_id
         for c in np.flatnonzero(~matched_cand).tolist():
