@@ -73,6 +73,7 @@ from av.video.reformatter import VideoReformatter
 
 from ._files import atomic_output, check_output_path, input_file
 from .timeline import Timeline
+from .._text import plural
 from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
@@ -182,10 +183,6 @@ def _drain(q: queue.Queue) -> None:
             q.get_nowait()
     except queue.Empty:
         pass
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
 # --------------------------------------------------------------------------------------------
@@ -322,7 +319,7 @@ def _decoded_frames(container, stream, path: Path) -> Iterator[av.VideoFrame]:
 def _damaged(path: Path, n_read: int, declared: int | None, damage: _Damage) -> InputError:
     if n_read == 0:
         return InputError(f"{path}: no video frame could be decoded: {damage}")
-    read = f"{n_read} of the {declared} frames the file declares" if declared else _plural(n_read, "frame")
+    read = f"{n_read} of the {declared} frames the file declares" if declared else plural(n_read, "frame")
     return InputError(f"{path}: video is damaged or truncated: decoded {read}, then {damage}")
 
 
@@ -521,7 +518,7 @@ def _decoder_thread(
     except InputError as exc:
         state.error = exc
     except av.error.FFmpegError as exc:
-        state.error = InputError(f"{path}: decoding failed after {_plural(n_read, 'frame')}: {_reason(exc)}")
+        state.error = InputError(f"{path}: decoding failed after {plural(n_read, 'frame')}: {_reason(exc)}")
     except BaseException as exc:  # a bug: re-raised as it is in the consumer's thread
         state.error = exc
     finally:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from .._text import plural
 from ..detections import Detections
 from ..errors import InputError, OutputError
 from ..io import atomic_output, output_batch
@@ -221,7 +222,7 @@ def _tiles_of(item: ReportSource, failures: Sequence[Failure]) -> Iterator[tuple
 def _sheet_header(camera: str, failures: Sequence[tuple[int, Failure]], shown: int, limit: int) -> tuple[str, str]:
     count = {k: sum(f.kind == k for _, f in failures) for k in FAILURE_KINDS}
     fps = count["false positive"]
-    title = (f"camera {camera}: {count['miss']} missed, {fps} false positive{'' if fps == 1 else 's'}, "
+    title = (f"camera {camera}: {count['miss']} missed, {plural(fps, 'false positive')}, "
              f"{count['loose']} loose (IoU 0.5 to 0.7)")
     if not failures:
         return title, "no failures"

@@ -19,6 +19,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from .._text import plural
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, OutputError, UsageError, require
@@ -507,7 +508,7 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
             write_image(o, draw_detections(survey.draw(image, lane), boxes), overwrite=options.overwrite, inputs=read)
         found.append(boxes)
         if kind == "folder":
-            notes.append(f"{f}: {len(boxes)} {'vehicle' if len(boxes) == 1 else 'vehicles'}" + (f" -> {o}" if o is not None else ""))
+            notes.append(f"{f}: {plural(len(boxes), 'vehicle')}" + (f" -> {o}" if o is not None else ""))
     table = Detections.concatenate(found) if found else Detections.empty()
     if kind == "folder":
         table = table.replace(data={**table.data, "file": [f.name for f, boxes in zip(images, found) for _ in range(len(boxes))]})

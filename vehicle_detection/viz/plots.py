@@ -32,7 +32,7 @@ from ..heatmap import label_heat
 from ..metrics.detection import match_frame
 from ..search import plan_windows
 from ..training.data import DATA_ENV, default_data_dir
-from .report import _plural
+from .._text import plural
 
 # matplotlib is not part of the command-line install: importing this module says which extra has it.
 plt = require("matplotlib.pyplot", "notebooks", "the figures (vehicle_detection.viz.plots)")
@@ -756,7 +756,7 @@ def boxes_grid_figure(items: Sequence[tuple[str, np.ndarray, np.ndarray]], *, nc
     fig, axes = _grid(nrows, ncols, 4.2, _panel_height(4.2, items[0][1].shape, rows) + 0.15)
     for ax, item in zip(axes.flat, items):
         name, frame, boxes = item
-        _frame_ax(ax, frame, title=f"{name}: {_plural(len(boxes), 'vehicle')}")
+        _frame_ax(ax, frame, title=f"{name}: {plural(len(boxes), 'vehicle')}")
         _boxes(ax, boxes, lw=2.2)
         _view(ax, frame.shape[1], frame.shape[0], rows)
     for ax in list(axes.flat)[len(items):]:

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .._text import plural
 from ..detections import Detections
 from ..errors import InputError, require
 from ..io import atomic_output, check_output_path
@@ -45,10 +46,6 @@ __all__ = ["RunSummary", "summarize", "render_html_report", "write_html_report",
 CROP_HEIGHT = 96
 #: Tracks shown on the contact sheet at most (the longest ones); the timeline shows them all.
 MAX_TRACKS = 150
-
-
-def _plural(n: int, word: str, plural: str | None = None) -> str:
-    return f"{n} {word}" if n == 1 else f"{n} {plural or word + 's'}"
 
 
 # --------------------------------------------------------------------------------------------
@@ -119,10 +116,10 @@ class RunSummary:
         >>> RunSummary("shots", 3, 0, unit="image").line()
         'shots: 3 images, 0 boxes; nothing written'
         """
-        parts = [_plural(self.frames, self.unit)]
+        parts = [plural(self.frames, self.unit)]
         if self.tracks is not None:
-            parts.append(_plural(self.tracks, "vehicle"))
-        parts.append(_plural(self.boxes, "box", "boxes"))
+            parts.append(plural(self.tracks, "vehicle"))
+        parts.append(plural(self.boxes, "box", "boxes"))
         if self.fps is not None:
             rate = f"{self.fps:.1f} fps" if self.unit == "frame" else f"{self.fps:.1f} images/s"
             parts.append(f"{rate} ({self.seconds:.1f} s)")
