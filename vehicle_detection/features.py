@@ -619,8 +619,8 @@ def _hog_batch(images, channels, lut, ppc, cpb, nb, out):
 
 @njit(nogil=True)
 def _features_serial(images, size, bins, hog_images, channels, lut, ppc, cpb, nb, spatial, hist, hog):
-    """All three feature parts of every patch on the calling thread (for small batches searched
-    in several threads at once, where parallel kernels would queue for the thread pool)."""
+    """All three feature parts of every patch on the calling thread (for small batches in several
+    threads at once, where parallel kernels would queue for the thread pool)."""
     for i in range(images.shape[0]):
         if size:
             _bin_spatial_one(images, i, size, spatial)
@@ -690,7 +690,7 @@ def extract_features(images: np.ndarray, config: FeatureConfig, *, parallel: boo
     config : FeatureConfig
     parallel : bool
         Spread the patches over numba's threads (large batches); False computes them on the
-        calling thread, without the GIL (small batches in threads of their own: the search).
+        calling thread, without the GIL (small batches, each in a thread of its own).
 
     Returns
     -------
