@@ -23,7 +23,7 @@ from .images import (
     read_image,
     write_image,
 )
-from .progress import in_notebook, progress_bar
+from .progress import in_notebook, plural, progress_bar
 from .tables import read_boxes_csv, read_lanes_csv, write_boxes_csv, write_lanes_csv
 from .timeline import Timeline
 from .video import X264_PRESETS, Encoding, VideoInfo, VideoWriter, probe_video, read_frames

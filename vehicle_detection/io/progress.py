@@ -1,4 +1,4 @@
-"""A progress bar on the terminal (or in a notebook), and nothing elsewhere."""
+"""A progress bar on the terminal (or in a notebook), and nothing elsewhere; counted words for what is printed."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["progress_bar", "in_notebook"]
+__all__ = ["progress_bar", "in_notebook", "plural"]
 
 
 def in_notebook() -> bool:
@@ -29,3 +29,17 @@ def progress_bar(total: int | None, desc: str, *, enabled: bool = True) -> Itera
 
     with tqdm(total=total, unit="frame", desc=desc, leave=False) as bar:
         yield bar
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``n`` and ``word``, in the plural unless ``n`` is 1: ``plural(2, "box", "boxes")`` is ``"2 boxes"``.
+
+    Parameters
+    ----------
+    n : int
+    word : str
+        The singular.
+    many : str, optional
+        The plural, where it is not ``word + "s"``.
+    """
+    return f"{n} {word}" if n == 1 else f"{n} {many or word + 's'}"

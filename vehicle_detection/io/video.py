@@ -73,7 +73,7 @@ from av.video.reformatter import VideoReformatter
 
 from ._files import atomic_output, check_output_path, input_file
 from .timeline import Timeline
-from .._text import plural
+from .progress import plural
 from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from .._text import plural
+from ..io import plural
 from ..detections import Detections
 from ..errors import InputError, OutputError
 from ..io import atomic_output, output_batch

@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from .._text import plural
+from ..io import plural
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, OutputError, UsageError, require

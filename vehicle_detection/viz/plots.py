@@ -32,7 +32,7 @@ from ..heatmap import label_heat
 from ..metrics.detection import match_frame
 from ..search import plan_windows
 from ..training.data import DATA_ENV, default_data_dir
-from .._text import plural
+from ..io import plural
 
 # matplotlib is not part of the command-line install: importing this module says which extra has it.
 plt = require("matplotlib.pyplot", "notebooks", "the figures (vehicle_detection.viz.plots)")

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .._text import plural
+from ..io import plural
 from ..detections import Detections
 from ..errors import InputError, require
 from ..io import atomic_output, check_output_path

@@ -1,10 +1,10 @@
-"""Tests of vehicle_detection._text: the words the package prints."""
+"""Tests of vehicle_detection.io.progress.plural: the counted words the package prints."""
 
 from __future__ import annotations
 
 import pytest
 
-from vehicle_detection._text import plural
+from vehicle_detection.io import plural
 
 
 @pytest.mark.parametrize(
