@@ -397,6 +397,28 @@ def test_failed_write_leaves_neither_file_nor_partial(tmp_path):
     assert_error(info, dest, "output exists; pass --overwrite")
 
 
+@pytest.mark.skipif(not hasattr(signal, "SIGINT") or os.name != "posix", reason="POSIX signals")
+def test_a_signal_while_the_output_file_is_made_leaves_no_partial(tmp_path, monkeypatch):
+    # Ctrl-C landing just after the temporary file exists, before its clean-up is in place.
+    from vehicle_detection.io import _files
+
+    made = []
+    real = _files.tempfile.mkstemp
+
+    def mkstemp_then_ctrl_c(*args, **kwargs):
+        fd, name = real(*args, **kwargs)
+        made.append(name)
+        os.kill(os.getpid(), signal.SIGINT)  # its handler runs at the next bytecode
+        return fd, name
+
+    monkeypatch.setattr(_files.tempfile, "mkstemp", mkstemp_then_ctrl_c)
+    dest = tmp_path / "out.csv"
+    with pytest.raises(KeyboardInterrupt):
+        with _files.interrupt_on_signals(), atomic_output(dest) as tmp:
+            tmp.write_text("never written\n")
+    assert made and list(tmp_path.iterdir()) == []
+
+
 def test_video_failing_at_the_end_takes_the_csv_with_it(tmp_path, monkeypatch):
     # The CSV is renamed into place just before the video; if finishing the video then fails
     # (here: the encoder cannot write its index), neither may be left looking finished.

@@ -180,11 +180,25 @@ def refuse_inputs(dest: str | os.PathLike, inputs: Iterable[str | os.PathLike]) 
 # --- committing outputs ------------------------------------------------------------------------
 
 
-class _Renaming:
-    """Set while finished outputs are being renamed into place (see interrupt_on_signals)."""
+class _Deferring:
+    """Set while a signal must wait (see interrupt_on_signals): finished outputs being renamed into
+    place, or a temporary file being made before its clean-up is in place."""
 
     active = 0
     pending: int | None = None
+
+
+@contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """A signal caught by :func:`interrupt_on_signals` inside the block interrupts at its end."""
+    _Deferring.active += 1
+    try:
+        yield
+    finally:
+        _Deferring.active -= 1
+    if _Deferring.pending is not None and not _Deferring.active:
+        _Deferring.pending = None
+        raise KeyboardInterrupt  # a signal arrived in the block: act on it now
 
 
 def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
@@ -203,7 +217,7 @@ def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
                 os.chmod(tmp, 0o666 & ~umask())  # mkstemp creates 0600; give the usual permissions
             except OSError as exc:
                 raise _write_error(dest, exc) from None
-        _Renaming.active += 1
+        _Deferring.active += 1
         try:
             for tmp, dest, _ in entries:
                 try:
@@ -212,14 +226,14 @@ def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
                     raise _write_error(dest, exc) from None
                 done += 1
         finally:
-            _Renaming.active -= 1
+            _Deferring.active -= 1
     except BaseException:
         for tmp, _, _ in entries[done:]:
             with suppress(OSError):
                 tmp.unlink()
         raise
-    if _Renaming.pending is not None and not _Renaming.active:
-        _Renaming.pending = None
+    if _Deferring.pending is not None and not _Deferring.active:
+        _Deferring.pending = None
         raise KeyboardInterrupt  # a signal arrived during the renames: act on it now
 
 
@@ -308,16 +322,20 @@ def atomic_output(
     """
     dest = check_output_path(dest, overwrite=overwrite, inputs=inputs)
     batch = _BATCH.get()
+    tmp = None
     try:
-        created = _make_parents(dest.parent)
-        if batch is not None:
-            batch.created.extend(created)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent)
-    except OSError as exc:
-        raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+        # A signal while the file is made would leave it behind: it interrupts once ``tmp`` is
+        # known, inside the block that deletes it.
+        with _signals_deferred():
+            try:
+                created = _make_parents(dest.parent)
+                if batch is not None:
+                    batch.created.extend(created)
+                fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent)
+            except OSError as exc:
+                raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
+            os.close(fd)
+            tmp = Path(tmp_name)
         try:
             yield tmp
         except VehicleDetectionError:
@@ -329,8 +347,9 @@ def atomic_output(
         else:
             _commit([(tmp, dest, overwrite)])
     except BaseException:
-        with suppress(OSError):
-            tmp.unlink()
+        if tmp is not None:
+            with suppress(OSError):
+                tmp.unlink()
         raise
 
 
@@ -344,7 +363,8 @@ def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP"
     So ``timeout``, ``docker stop``, systemd and a closed terminal get the same clean-up as
     Ctrl-C: temporary files deleted, previous outputs left intact. Only the first signal raises
     (a second one during the clean-up is ignored), and a signal that arrives while finished
-    outputs are being renamed into place is acted on once the renames are done. Installed only
+    outputs are being renamed into place, or while a temporary output file is being made, is
+    acted on once that is done. Installed only
     when called from the main thread; the previous handlers are restored on exit.
     """
     nums = [getattr(signal, name) for name in signals if hasattr(signal, name)]
@@ -357,8 +377,8 @@ def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP"
         nonlocal fired
         if fired:
             return
-        if _Renaming.active:
-            _Renaming.pending = signum
+        if _Deferring.active:
+            _Deferring.pending = signum
             return
         fired = True
         raise KeyboardInterrupt
@@ -371,7 +391,7 @@ def interrupt_on_signals(signals: Iterable[str] = ("SIGINT", "SIGTERM", "SIGHUP"
     finally:
         for num, old in previous.items():
             signal.signal(num, old if old is not None else signal.SIG_DFL)
-        _Renaming.pending = None
+        _Deferring.pending = None
 
 
 # --- reading -----------------------------------------------------------------------------------

@@ -71,7 +71,7 @@ import av
 import numpy as np
 from av.video.reformatter import VideoReformatter
 
-from ._files import atomic_output, check_output_path, input_file
+from ._files import _signals_deferred, atomic_output, check_output_path, input_file
 from .timeline import Timeline
 from .progress import plural
 from ..errors import InputError, OutputError
@@ -769,8 +769,13 @@ class VideoWriter:
             raise RuntimeError("a VideoWriter can be used for one 'with' block only; create a new one")
         self._used = True
         self._atomic = atomic_output(self.path, overwrite=self.overwrite, inputs=self.inputs)
-        tmp = self._atomic.__enter__()
+        entered = False
         try:
+            # A signal between making the temporary file and this block would leave it behind:
+            # it interrupts once the block holds the file.
+            with _signals_deferred():
+                tmp = self._atomic.__enter__()
+                entered = True
             try:
                 self._open(tmp)
             except (av.error.FFmpegError, OSError) as exc:
@@ -780,8 +785,9 @@ class VideoWriter:
             )
             self._thread.start()
         except BaseException as exc:
-            self._abort()
-            self._atomic.__exit__(type(exc), exc, exc.__traceback__)
+            if entered:  # else atomic_output has cleaned up after itself
+                self._abort()
+                self._atomic.__exit__(type(exc), exc, exc.__traceback__)
             raise
         return self
 
