@@ -646,3 +646,23 @@ def test_camera_sheet_caps_the_tiles(tmp_path):
     assert counts["shown"] == 4 and counts["left_out"] == 0 and sheet.shape[1] == 4 + 4 * 260
     sheet, counts = camera_sheet("cam", [ReportSource(ann, Detections([[10, 10, 60, 50]] * 3, frame=[0, 1, 2]), folder, "cam")])
     assert counts["shown"] == 0 and sheet.shape[0] == 62 + 4  # no failures: the header alone
+
+
+def test_scores_do_not_depend_on_the_order_of_the_boxes_to_the_last_bit():
+    # Found by test_bad_input.test_evaluation_invariants: equal boxes tie, the matching pairs
+    # them in either order, and summing the matched IoUs in that order moved the mean IoU's
+    # last bit.
+    import itertools
+
+    from vehicle_detection.metrics.detection import Annotations, FrameLabels, evaluate_detections
+
+    dets = np.array([[0, 0, 1, 1], [0, 0, 1, 1], [0, 0, 1, 1], [0, 0, 1, 1], [0, 0, 1, 4]])
+    cars = np.array([[0, 0, 2, 2], [0, 0, 1, 1], [0, 0, 1, 2], [0, 0, 1, 1]])
+    none = np.zeros((0, 4), np.int64)
+    seen = set()
+    for d, c in itertools.product(itertools.permutations(range(5)), [(0, 1, 2, 3), (3, 2, 1, 0)]):
+        ann = Annotations(None, {0: FrameLabels(cars=cars[list(c)], ignore=none)})
+        scores = evaluate_detections({0: dets[list(d)]}, ann, (0.3, 0.5))
+        seen.add(tuple(tuple(sorted(s.as_dict().items())) for s in scores.values()))
+    assert len(seen) == 1
+

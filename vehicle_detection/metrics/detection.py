@@ -30,6 +30,7 @@ else its frame size (:func:`camera_name`). :func:`find_failures` lists what a co
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -602,12 +603,14 @@ def evaluate_detections(
     result: dict[float, Scores] = {}
     for t in thresholds:
         tp = fp = fn = ignored = 0
-        iou_sum = 0.0
+        ious: list[float] = []
         for frame, labels in annotations.frames.items():
             m = match_frame(dets[frame], labels, iou_threshold=t, ignore_overlap=ignore_overlap)
             tp, fp, fn, ignored = tp + m.tp, fp + m.fp, fn + m.fn, ignored + m.ignored
-            iou_sum += float(m.match_iou.sum())
-        result[t] = Scores(tp=tp, fp=fp, fn=fn, ignored=ignored, n_frames=len(annotations.frames), iou_sum=iou_sum)
+            ious.extend(m.match_iou.tolist())
+        # fsum: correctly rounded, so the mean IoU does not depend on the order of the boxes
+        # (a tie between equal boxes may pair them in either order)
+        result[t] = Scores(tp=tp, fp=fp, fn=fn, ignored=ignored, n_frames=len(annotations.frames), iou_sum=math.fsum(ious))
     return result
 
 
