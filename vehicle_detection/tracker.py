@@ -348,8 +348,9 @@ def _check_state(state: TrackerState, config: TrackerConfig) -> TrackerState:
 
 
 def _predict(track: Track, frame_shape: tuple[int, int] | None) -> np.ndarray:
-    """The track's box one frame ahead at its velocity, kept inside the frame; its box when that
-    would leave no box (a car shrinking or leaving faster than the filter can follow)."""
+    """The track's box one frame ahead at its velocity, kept inside the frame. When that would
+    leave no box (a car shrinking or leaving faster than the filter can follow), the track is
+    stopped (its velocity set to zero) and its box is returned."""
     if not track.velocity.any():
         return track.box
     box = track.box + track.velocity
