@@ -190,7 +190,14 @@ class _Deferring:
 
 @contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """A signal caught by :func:`interrupt_on_signals` inside the block interrupts at its end."""
+    """A signal caught by :func:`interrupt_on_signals` inside the block interrupts at its end.
+
+    Only in the main thread, where Python runs signal handlers: another thread's block must not
+    hold back, or take over, the main thread's interrupt.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     _Deferring.active += 1
     try:
         yield
@@ -217,24 +224,18 @@ def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
                 os.chmod(tmp, 0o666 & ~umask())  # mkstemp creates 0600; give the usual permissions
             except OSError as exc:
                 raise _write_error(dest, exc) from None
-        _Deferring.active += 1
-        try:
+        with _signals_deferred():  # a signal during the renames acts once they are all done
             for tmp, dest, _ in entries:
                 try:
                     os.replace(tmp, dest)
                 except OSError as exc:
                     raise _write_error(dest, exc) from None
                 done += 1
-        finally:
-            _Deferring.active -= 1
     except BaseException:
         for tmp, _, _ in entries[done:]:
             with suppress(OSError):
                 tmp.unlink()
         raise
-    if _Deferring.pending is not None and not _Deferring.active:
-        _Deferring.pending = None
-        raise KeyboardInterrupt  # a signal arrived during the renames: act on it now
 
 
 class _Batch:
