@@ -72,8 +72,8 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from ._files import _signals_deferred, atomic_output, check_output_path, input_file
-from .timeline import Timeline
 from .progress import plural
+from .timeline import Timeline
 from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
