@@ -374,11 +374,9 @@ class Detector:
         search = det.windows if timeline is None else timeline.timed("search", det.windows)
 
         def advance(frame, future):
-            if timeline is None:
-                windows = future.result()
-            else:
-                t = Timeline.now()
-                windows = future.result()
+            t = Timeline.now() if timeline is not None else 0.0
+            windows = future.result()
+            if timeline is not None:
                 t = timeline.lap("search_wait", t)
             index = tracker.state.frame_index
             found = det.track_step(frame.shape, windows, tracker)

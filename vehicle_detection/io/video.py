@@ -541,11 +541,9 @@ def _decode(
     n_yielded = 0
     try:
         while True:
-            if timeline is None:
-                item = q.get()
-            else:
-                t = Timeline.now()
-                item = q.get()
+            t = Timeline.now() if timeline is not None else 0.0
+            item = q.get()
+            if timeline is not None:
                 timeline.lap("read_wait", t)
             if item is _END:
                 break
