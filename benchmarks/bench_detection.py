@@ -37,6 +37,7 @@ encoding) and of each thread's waits on its queues. With ``--camera`` (a file fr
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import inspect
 import itertools
@@ -88,42 +89,27 @@ def main():
     print(f"{video.name}: {info.width}x{info.height}, {n} frames, {os.cpu_count()} cores")
 
     with tempfile.TemporaryDirectory() as tmp:
-        t, c = time.perf_counter(), time.process_time()
-        plain_decode_encode(video, Path(tmp) / "plain.mp4", n)
-        plain_fps, plain_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
+        plain_fps, plain_cpu = _rate(n, plain_decode_encode, video, Path(tmp) / "plain.mp4", n)
+        ffmpeg_fps, ffmpeg_cpu = _rate(n, ffmpeg_decode_encode, video, Path(tmp) / "ffmpeg.mp4", n)
 
-        t, c = time.perf_counter(), time.process_time()
-        ffmpeg_decode_encode(video, Path(tmp) / "ffmpeg.mp4", n)
-        ffmpeg_fps, ffmpeg_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
+        def copy():
+            with VideoWriter(Path(tmp) / "copy.mp4", info.fps, info.size, preset="ultrafast") as w:
+                for f in itertools.islice(read_frames(video), n):
+                    w.write(f)
 
-        t, c = time.perf_counter(), time.process_time()
-        with VideoWriter(Path(tmp) / "copy.mp4", info.fps, info.size, preset="ultrafast") as w:
-            for i, f in enumerate(read_frames(video)):
-                if i >= n:
-                    break
-                w.write(f)
-        copy_fps, copy_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
-
-        t, c = time.perf_counter(), time.process_time()
-        for _ in detector.track(frames):
-            pass
-        detect_fps, detect_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
-
-        t, c = time.perf_counter(), time.process_time()
-        process_video(video, Path(tmp) / "out.mp4", detector=detector, progress=False, frames=(0, n))
-        e2e_fps, e2e_cpu = n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
+        copy_fps, copy_cpu = _rate(n, copy)
+        detect_fps, detect_cpu = _rate(n, lambda: collections.deque(detector.track(frames), maxlen=0))
+        e2e_fps, e2e_cpu = _rate(n, process_video, video, Path(tmp) / "out.mp4", detector=detector, progress=False, frames=(0, n))
 
         # The pipeline around the search on its own: end to end with a search of a few hundred
         # windows (one band of 256-pixel windows, every 4 cells), the rest as it is.
         cfg = detector.config
         light_plan = dataclasses.replace(cfg.plan, scales=(SearchScale(4.0, 336, 720, step=4),))
         light = Detector(detector.model.replace(detector_config=cfg.replace(plan=light_plan)))
-        light_fps, light_cpu = [], []
-        for i in range(3):
-            t, c = time.perf_counter(), time.process_time()
-            process_video(video, Path(tmp) / "light.mp4", detector=light, progress=False, frames=(0, n), overwrite=True)
-            light_fps.append(n / (time.perf_counter() - t))
-            light_cpu.append(1000 * (time.process_time() - c) / n)
+        light_fps, light_cpu = zip(*(
+            _rate(n, process_video, video, Path(tmp) / "light.mp4", detector=light, progress=False, frames=(0, n), overwrite=True)
+            for _ in range(3)
+        ))
 
         timeline = None
         if "timeline" in inspect.signature(process_video).parameters:  # not in older checkouts
@@ -192,6 +178,14 @@ def main():
     print(f"\ntimeline of end to end (another run, {timeline.frames / timeline.wall:.1f} fps; stages of threads that "
           "overlap add up to more than the wall time):")
     print(timeline.table())
+
+
+def _rate(n: int, work, *args, **kwargs) -> tuple[float, float]:
+    """``work(*args, **kwargs)`` over ``n`` frames: frames a second (wall), and milliseconds of
+    CPU a frame (all threads of this process)."""
+    t, c = time.perf_counter(), time.process_time()
+    work(*args, **kwargs)
+    return n / (time.perf_counter() - t), 1000 * (time.process_time() - c) / n
 
 
 def _range(xs: list[float], fmt: str = "{:.1f}") -> str:
