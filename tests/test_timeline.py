@@ -11,7 +11,7 @@ import pytest
 
 from conftest import REPO
 from vehicle_detection.detector import Detector
-from vehicle_detection.io.timeline import STAGES, Timeline
+from vehicle_detection.io.timeline import STAGES, UNTIMED, Timeline, timing
 from vehicle_detection.io.video import VideoWriter, probe_video, read_frames
 from vehicle_detection.pipeline import process_video
 from vehicle_detection.viz.drawing import draw_detections
@@ -68,6 +68,20 @@ def test_timed_adds_each_call_even_when_it_raises():
     with pytest.raises(KeyError):
         timeline.timed("track", fails)()
     assert timeline.count("track") == 2
+
+
+def test_untimed_is_the_clock_of_a_run_without_a_timeline():
+    timeline = Timeline()
+    assert timing(timeline) is timeline and timing(None) is UNTIMED
+
+    def work(a, b=1):
+        return a + b
+
+    assert UNTIMED.timed("search", work) is work  # the stage runs as it is, no wrapper
+    assert UNTIMED.now() == 0.0 and UNTIMED.lap("decode", UNTIMED.now()) == 0.0
+    assert repr(UNTIMED) == "UNTIMED"
+    with pytest.raises(AttributeError):
+        UNTIMED.frames = 3  # it keeps nothing: a run cannot write its figures into it
 
 
 @needs_test_video

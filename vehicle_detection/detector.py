@@ -35,7 +35,7 @@ from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
 from .horizon import TOLERANCE, estimate_horizon
 from .io.images import as_image, as_rgb_uint8
-from .io.timeline import Timeline
+from .io.timeline import Timeline, timing
 from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
 from .search import search
 from .tracker import Tracker, window_heat
@@ -364,25 +364,22 @@ class Detector:
         (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
         A ``timeline`` is filled as :meth:`track_frames` says.
         """
-        t = Timeline.now() if timeline is not None else 0.0
+        clock = timing(timeline)
+        t = clock.now()
         compile_search_kernels(self.model)  # on a fresh install, on both cores
-        if timeline is not None:
-            t = timeline.lap("warmup", t)
+        t = clock.lap("warmup", t)
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
-        if timeline is not None:
-            timeline.lap("footage", t)
-        search = det.windows if timeline is None else timeline.timed("search", det.windows)
+        clock.lap("footage", t)
+        search = clock.timed("search", det.windows)
 
         def advance(frame, future):
-            t = Timeline.now() if timeline is not None else 0.0
+            t = clock.now()
             windows = future.result()
-            if timeline is not None:
-                t = timeline.lap("search_wait", t)
+            t = clock.lap("search_wait", t)
             index = tracker.state.frame_index
             found = det.track_step(frame.shape, windows, tracker)
             backfill = det._inside(tracker.backfill, det._overlays)
-            if timeline is not None:
-                timeline.lap("track", t)
+            clock.lap("track", t)
             return frame, index, found, backfill
 
         pending: deque = deque()

@@ -3,8 +3,9 @@
 A :class:`Timeline` is an optional argument of :func:`~vehicle_detection.pipeline.process_video`
 (and of the pieces it is made of: :func:`~vehicle_detection.io.read_frames`,
 :class:`~vehicle_detection.io.VideoWriter`, :meth:`~vehicle_detection.detector.Detector.track_frames`).
-Without one, those functions measure nothing (one ``None`` check per stage and frame); with one,
-each stage adds the seconds it took, frame by frame, with :func:`time.perf_counter`.
+Without one, those functions measure nothing: they time their stages on :data:`UNTIMED`, whose
+clock reads 0 and whose laps add nothing (one method call per stage and frame); with one, each
+stage adds the seconds it took, frame by frame, with :func:`time.perf_counter`.
 
 The stages, in the order of :data:`STAGES`, and the thread each runs in:
 
@@ -39,7 +40,7 @@ from __future__ import annotations
 import threading
 import time
 
-__all__ = ["Timeline", "STAGES"]
+__all__ = ["Timeline", "STAGES", "UNTIMED", "timing"]
 
 #: Every stage, in pipeline order, with the thread it runs in.
 STAGES: dict[str, str] = {
@@ -150,3 +151,32 @@ class Timeline:
 
     def __repr__(self) -> str:
         return f"Timeline(frames={self.frames}, wall={self.wall:.3f}, stages={len(self._seconds)})"
+
+
+class _Untimed:
+    """The clock of a run without a :class:`Timeline`: :meth:`Timeline.now`, :meth:`~Timeline.lap`
+    and :meth:`~Timeline.timed` that measure nothing, so the stages need no ``None`` checks."""
+
+    __slots__ = ()
+
+    @staticmethod
+    def now() -> float:
+        return 0.0
+
+    def lap(self, stage: str, since: float) -> float:
+        return 0.0
+
+    def timed(self, stage: str, function):
+        return function
+
+    def __repr__(self) -> str:
+        return "UNTIMED"
+
+
+#: What a stage times itself on when the run has no timeline.
+UNTIMED = _Untimed()
+
+
+def timing(timeline: Timeline | None) -> Timeline | _Untimed:
+    """``timeline``, or :data:`UNTIMED` for None: the clock a pipeline stage laps on."""
+    return UNTIMED if timeline is None else timeline

@@ -73,7 +73,7 @@ from av.video.reformatter import VideoReformatter
 
 from ._files import _signals_deferred, atomic_output, check_output_path, input_file
 from .progress import plural
-from .timeline import Timeline
+from .timeline import Timeline, timing
 from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
@@ -500,18 +500,16 @@ def _decoder_thread(
             stream = container.streams[layout.stream_index]
             _setup_decoder(stream, threads)
             scaler = VideoReformatter()
+            clock = timing(timeline)
             try:
-                t = Timeline.now() if timeline is not None else 0.0
+                t = clock.now()
                 for frame in _decoded_frames(container, stream, path):
-                    if timeline is not None:
-                        t = timeline.lap("decode", t)
+                    t = clock.lap("decode", t)
                     rgb = _to_rgb(frame, layout, scaler, threads)
-                    if timeline is not None:
-                        t = timeline.lap("to_rgb", t)
+                    t = clock.lap("to_rgb", t)
                     if not _put(q, rgb, stop):
                         return
-                    if timeline is not None:
-                        t = timeline.lap("decoder_wait", t)
+                    t = clock.lap("decoder_wait", t)
                     n_read += 1
             except _Damage as damage:
                 state.error = _damaged(path, n_read, stream.frames or None, damage)
@@ -539,12 +537,12 @@ def _decode(
     )
     thread.start()
     n_yielded = 0
+    clock = timing(timeline)
     try:
         while True:
-            t = Timeline.now() if timeline is not None else 0.0
+            t = clock.now()
             item = q.get()
-            if timeline is not None:
-                timeline.lap("read_wait", t)
+            clock.lap("read_wait", t)
             if item is _END:
                 break
             n_yielded += 1
@@ -808,13 +806,12 @@ class VideoWriter:
     def _encoder_thread(self) -> None:
         """Convert, encode and mux the queued frames; flush and close the file at the end marker."""
         scaler = VideoReformatter()
-        stream, container, timeline = self._stream, self._container, self._timeline
+        stream, container, clock = self._stream, self._container, timing(self._timeline)
         pts = 0
-        t = Timeline.now() if timeline is not None else 0.0
+        t = clock.now()
         while True:
             item = self._queue.get()
-            if timeline is not None:
-                t = timeline.lap("encoder_wait", t)
+            t = clock.lap("encoder_wait", t)
             if item is _END:
                 break
             if self._failure is not None:
@@ -825,13 +822,11 @@ class VideoWriter:
                     rgb, format="yuv420p", dst_colorspace="ITU709", dst_color_range="MPEG", threads=self.threads
                 )
                 del rgb, item  # the frame's array is not needed after the conversion
-                if timeline is not None:
-                    t = timeline.lap("to_yuv", t)
+                t = clock.lap("to_yuv", t)
                 yuv.pts = pts
                 pts += 1
                 container.mux(stream.encode(yuv))
-                if timeline is not None:
-                    t = timeline.lap("encode", t)
+                t = clock.lap("encode", t)
             except BaseException as exc:
                 self._failure = exc
         if self._failure is None:
@@ -839,8 +834,7 @@ class VideoWriter:
                 container.mux(stream.encode(None))  # the frames x264 still holds
                 container.close()  # writes the index, moved to the front (+faststart)
                 self._file.close()
-                if timeline is not None:
-                    timeline.lap("encode", t)
+                clock.lap("encode", t)
             except BaseException as exc:
                 self._failure = exc
 
@@ -896,8 +890,8 @@ class VideoWriter:
         """
         if self._thread is None or not self._thread.is_alive():
             raise RuntimeError("VideoWriter.write() must be called inside its 'with' block")
-        timeline = self._timeline
-        t = Timeline.now() if timeline is not None else 0.0
+        clock = timing(self._timeline)
+        t = clock.now()
         frame = np.asarray(frame)
         width, height = self.size
         if frame.shape != (height, width, 3):
@@ -916,9 +910,7 @@ class VideoWriter:
             item = np.array(frame, dtype=np.uint8, order="C", copy=True)
         else:
             item = frame
-        if timeline is not None:
-            t = timeline.lap("write", t)
+        t = clock.lap("write", t)
         self._queue.put(item)
-        if timeline is not None:
-            timeline.lap("write_wait", t)
+        clock.lap("write_wait", t)
         self._frames_written += 1

@@ -24,7 +24,7 @@ from ..detector import Detector
 from ..errors import InputError, UsageError
 from ..io import check_outputs, output_batch, progress_bar, write_tables
 from ..io.images import check_frame_shape
-from ..io.timeline import Timeline
+from ..io.timeline import Timeline, timing
 from ..io.video import Encoding, VideoWriter, probe_video, read_frames
 from ..road.survey import Road, RoadSurvey
 from ..tracker import Tracker, TrackerState
@@ -67,9 +67,8 @@ def _prepared(source: Iterable[np.ndarray], helper: ThreadPoolExecutor, survey: 
     With lanes, the lane of each frame is found in the same (single) helper thread, so in frame
     order; its future is appended to ``lanes_ahead`` as the frame is yielded.
     """
-    undistort, find_lane = survey.undistort, survey.find_lane
-    if timeline is not None:
-        undistort, find_lane = timeline.timed("prepare", undistort), timeline.timed("prepare", find_lane)
+    clock = timing(timeline)
+    undistort, find_lane = clock.timed("prepare", survey.undistort), clock.timed("prepare", survey.find_lane)
 
     def work(frame):
         frame = undistort(frame)
@@ -223,7 +222,8 @@ def run_video(
         raise ValueError(f"the tracker continues at frame {tracker.state.frame_index}, not at start={start}")
     survey = road.survey(info.fps or 25.0)
     encoding, codec = encoding or Encoding(), threads or 0
-    started = Timeline.now() if timeline is not None else 0.0
+    clock = timing(timeline)
+    started = clock.now()
     with output_batch(), ExitStack() as stack:
         decoded = stack.enter_context(closing(read_frames(path, threads=codec, timeline=timeline)))
         writer = None
@@ -242,20 +242,18 @@ def run_video(
         found = []
         tracked = detector.track_frames(source, tracker, workers=threads or SEARCH_WORKERS, timeline=timeline)
         for index, (frame, boxes) in enumerate(tracked, start=start):
-            t = Timeline.now() if timeline is not None else 0.0
+            t = clock.now()
             boxes = survey.measure(boxes)
             found.append(boxes)
             lane = lanes_ahead.popleft().result() if survey.finds_lanes else None
             survey.record(index, lane)
-            if timeline is not None:
-                t = timeline.lap("track", t)
+            t = clock.lap("track", t)
             if writer is not None:
                 # The frame is this run's own (decoded, or undistorted, here) and its search is
                 # done: the boxes are drawn on it, and the writer takes it without a copy.
                 picture = survey.draw(frame, lane)
                 drawn = draw_detections(picture, boxes, out=picture)
-                if timeline is not None:
-                    timeline.lap("draw", t)
+                clock.lap("draw", t)
                 writer.write(drawn, copy=False)
             if bar is not None:
                 bar.update()
