@@ -1,11 +1,18 @@
-"""Score the embedded model with other tracker settings, camera by camera (writeup 3.4's table).
+"""Score variants of the embedded model, camera by camera (writeup 3.4's tables).
 
-    python tools/tracker_settings.py SETTING [SETTING ...] [--group NAME LABELS [LABELS ...]]...
+    python tools/model_variants.py VARIANT [VARIANT ...] [--group NAME LABELS [LABELS ...]]...
 
-A SETTING is ``embedded`` (the model's own settings) or comma-separated ``field=value`` pairs of
-:class:`vehicle_detection.tracker.TrackerConfig`, e.g. ``motion=0.1`` or ``smoothing=0.7,motion=0.2``.
-For each, the embedded model is saved with those tracker settings into a temporary folder, and
-every group of labels files is scored by the command line, as a user would::
+A VARIANT is one of:
+
+* ``embedded``: the model as shipped;
+* comma-separated ``field=value`` pairs of :class:`vehicle_detection.tracker.TrackerConfig`, e.g.
+  ``motion=0.1`` or ``smoothing=0.7,motion=0.2``: the embedded model with those tracker settings;
+* ``refine=L1.json+L2.json``: the embedded model with its box refinement fitted again on those
+  labels files only (:func:`vehicle_detection.training.with_box_refinement`, as ``train --labels``
+  fits it), e.g. on one camera's frames to score it on another camera it never saw.
+
+For each, the model is saved into a temporary folder, and every group of labels files is scored
+by the command line, as a user would::
 
     vehicle-detection evaluate --labels LABELS... --model M --json
 
@@ -33,12 +40,25 @@ GROUPS = {
 
 
 def model_with(setting: str, folder: Path) -> Path | None:
-    """The embedded model saved with ``setting``'s tracker fields; None for ``embedded``."""
+    """The embedded model saved as ``setting`` says (see the module); None for ``embedded``."""
     if setting == "embedded":
         return None
     import vehicle_detection as vd
 
     model = vd.load_default_model()
+    path = folder / f"model_{len(list(folder.iterdir()))}.npz"
+    if setting.startswith("refine="):
+        from vehicle_detection.training import with_box_refinement
+
+        files = [Path(p) for p in setting.removeprefix("refine=").split("+") if p]
+        if not files:
+            raise SystemExit(f"{setting!r}: refine= takes labels files joined by '+'")
+        old = model.metrics.get("box_refinement", {})  # refit as the embedded model was fitted
+        options = {"alpha": old["alpha"]} if "alpha" in old else {}
+        cfg = model.detector_config.tracker
+        model = with_box_refinement(model, [vd.load_annotations(p) for p in files], cluster_iou=cfg.cluster_iou, box_vote=cfg.box_vote, **options)
+        model.save(path)
+        return path
     config = model.detector_config
     changes = {}
     for pair in setting.split(","):
@@ -50,7 +70,6 @@ def model_with(setting: str, folder: Path) -> Path | None:
         tracker = dataclasses.replace(config.tracker, **changes)
     except TypeError as exc:
         raise SystemExit(f"{setting!r}: {exc}") from None
-    path = folder / f"model_{len(list(folder.iterdir()))}.npz"
     model.replace(detector_config=config.replace(tracker=tracker)).save(path)
     return path
 
@@ -73,7 +92,8 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("settings", nargs="+", help="'embedded' or field=value[,field=value...] of TrackerConfig")
+    ap.add_argument("settings", nargs="+", metavar="VARIANT",
+                    help="'embedded', field=value[,field=value...] of TrackerConfig, or refine=L1.json[+L2.json...]")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
