@@ -2,23 +2,26 @@
 
     python tools/model_variants.py VARIANT [VARIANT ...] [--group NAME LABELS [LABELS ...]]...
 
-A VARIANT is one of:
+A VARIANT is ``embedded`` (the model as shipped) or comma-separated ``key=value`` pairs applied to
+the embedded model:
 
-* ``embedded``: the model as shipped;
-* comma-separated ``field=value`` pairs of :class:`vehicle_detection.tracker.TrackerConfig`, e.g.
-  ``motion=0.1`` or ``smoothing=0.7,motion=0.2``: the embedded model with those tracker settings;
-* ``refine=L1.json+L2.json``: the embedded model with its box refinement fitted again on those
-  labels files only (:func:`vehicle_detection.training.with_box_refinement`, as ``train --labels``
-  fits it), e.g. on one camera's frames to score it on another camera it never saw.
+* fields of :class:`vehicle_detection.tracker.TrackerConfig`, e.g. ``motion=0.1`` or
+  ``smoothing=0.7,motion=0.2``: those tracker settings;
+* ``refine=L1.json+L2.json``: the box refinement fitted again on those labels files only
+  (:func:`vehicle_detection.training.with_box_refinement`, as ``train --labels`` fits it), e.g. on
+  one camera's frames, to score it on a camera it never saw; ``refine_alpha=A`` sets its ridge
+  penalty (default: the embedded refinement's); ``refine=none``: no refinement, but the fixed
+  window inset of the models before it (``TrackerConfig``'s default) and no blob splitting or box
+  voting.
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
 
     vehicle-detection evaluate --labels LABELS... --model M --json
 
-One line per setting and group: F1 at IoU 0.5 and 0.7, the mean IoU of matched boxes, and HOTA
+One line per variant and group: F1 at IoU 0.5 and 0.7, the mean IoU of matched boxes, and HOTA
 (AssA) where the labels carry track ids. The default groups are the tune frames of both dev
-cameras; score held-out frames only once a setting has been chosen on these.
+cameras; score held-out frames only once a variant has been chosen on these.
 """
 
 from __future__ import annotations
@@ -39,38 +42,43 @@ GROUPS = {
 }
 
 
-def model_with(setting: str, folder: Path) -> Path | None:
-    """The embedded model saved as ``setting`` says (see the module); None for ``embedded``."""
-    if setting == "embedded":
+def model_with(variant: str, folder: Path) -> Path | None:
+    """The embedded model saved as ``variant`` says (see the module); None for ``embedded``."""
+    if variant == "embedded":
         return None
     import vehicle_detection as vd
+    from vehicle_detection.training import with_box_refinement
 
     model = vd.load_default_model()
-    path = folder / f"model_{len(list(folder.iterdir()))}.npz"
-    if setting.startswith("refine="):
-        from vehicle_detection.training import with_box_refinement
-
-        files = [Path(p) for p in setting.removeprefix("refine=").split("+") if p]
-        if not files:
-            raise SystemExit(f"{setting!r}: refine= takes labels files joined by '+'")
-        old = model.metrics.get("box_refinement", {})  # refit as the embedded model was fitted
-        options = {"alpha": old["alpha"]} if "alpha" in old else {}
-        cfg = model.detector_config.tracker
-        model = with_box_refinement(model, [vd.load_annotations(p) for p in files], cluster_iou=cfg.cluster_iou, box_vote=cfg.box_vote, **options)
-        model.save(path)
-        return path
-    config = model.detector_config
-    changes = {}
-    for pair in setting.split(","):
+    pairs = {}
+    for pair in variant.split(","):
         name, _, value = pair.partition("=")
         if not value:
-            raise SystemExit(f"{setting!r}: each setting is field=value (e.g. motion=0.1)")
-        changes[name.strip()] = float(value)
+            raise SystemExit(f"{variant!r}: each part is key=value (e.g. motion=0.1)")
+        pairs[name.strip()] = value.strip()
+    refine = pairs.pop("refine", "")
+    files = [] if refine == "none" else [Path(p) for p in refine.split("+") if p]
+    alpha = pairs.pop("refine_alpha", None)
+    if alpha is not None and not files:
+        raise SystemExit(f"{variant!r}: refine_alpha needs refine=LABELS")
+    config = model.detector_config
     try:
-        tracker = dataclasses.replace(config.tracker, **changes)
-    except TypeError as exc:
-        raise SystemExit(f"{setting!r}: {exc}") from None
-    model.replace(detector_config=config.replace(tracker=tracker)).save(path)
+        tracker = dataclasses.replace(config.tracker, **{k: float(v) for k, v in pairs.items()})
+    except (TypeError, ValueError) as exc:
+        raise SystemExit(f"{variant!r}: {exc}") from None
+    if files:
+        # refit as the embedded refinement was fitted, unless told otherwise
+        alpha = float(alpha) if alpha is not None else model.metrics.get("box_refinement", {}).get("alpha", 1000.0)
+        model = with_box_refinement(model, [vd.load_annotations(p) for p in files], alpha=alpha,
+                                    cluster_iou=tracker.cluster_iou, box_vote=tracker.box_vote)
+    if refine == "none":
+        from vehicle_detection.tracker import TrackerConfig
+
+        tracker = dataclasses.replace(tracker, window_inset=TrackerConfig().window_inset, cluster_iou=0.0)
+        model = model.replace(box_regressor=None)
+    model = model.replace(detector_config=model.detector_config.replace(tracker=tracker))
+    path = folder / f"model_{len(list(folder.iterdir()))}.npz"
+    model.save(path)
     return path
 
 
@@ -92,8 +100,8 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("settings", nargs="+", metavar="VARIANT",
-                    help="'embedded', field=value[,field=value...] of TrackerConfig, or refine=L1.json[+L2.json...]")
+    ap.add_argument("variants", nargs="+", metavar="VARIANT",
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
@@ -101,10 +109,10 @@ def main(argv: list[str] | None = None) -> None:
     if any(not files for files in groups.values()):
         raise SystemExit("--group takes a name and at least one labels file")
     with tempfile.TemporaryDirectory() as tmp:
-        for setting in args.settings:
-            model = model_with(setting, Path(tmp))
+        for variant in args.variants:
+            model = model_with(variant, Path(tmp))
             for name, files in groups.items():
-                print(f"{setting:28s} {name:14s} {evaluate(files, model)}", flush=True)
+                print(f"{variant:28s} {name:14s} {evaluate(files, model)}", flush=True)
 
 
 if __name__ == "__main__":
