@@ -38,7 +38,7 @@ REPO = Path(__file__).resolve().parents[1]
 DEV = REPO / "dev_set"
 GROUPS = {
     "project tune": [DEV / "clip_A.json", DEV / "test_video.json", DEV / "test_images.json", DEV / "clip_A_tracks.json"],
-    "highway tune": [DEV / "highway_dashcam_tune.json"],
+    "highway tune": [DEV / "highway_dashcam_tune.json", DEV / "highway_dashcam_tune_extra.json"],
 }
 
 
