@@ -12,17 +12,15 @@ as sums over that image, ``8 s / o`` pixels wide at octave ``o``. Two such pyram
   (12-pixel cells), as Dollar et al.'s fast feature pyramids approximate the scales between
   octaves.
 
-The windows are those of each band of the search, cut from the band as the search resized it (so
-the "today" margins are recomputed from 64-pixel crops; the tool checks them against the search's
-own to 1e-4). Spatial bins and colour histograms stay today's: only the HOG part of each margin
-changes.
-
 For every window of the embedded model's plan on the frames (default: the shipped test images and
 every 8th frame of the shipped test video), the margin the search gives it today is compared with
-the margin of the same window's features when its HOG comes from the shared pyramid (its spatial
-bins and colour histograms are today's). One line per scale and pyramid: the correlation of the
-margins, the mean and spread of the change in margin units, and how many of today's hot windows
-(margin above the plan's threshold) stay hot and how many others become hot.
+the margin of the same window when its HOG comes from a shared pyramid; its spatial bins and
+colour histograms stay today's. The windows are cut from each band as the search resized it, so
+today's margins are recomputed from 64-pixel crops, and the tool stops unless they agree with the
+search's own to 1e-4. One line per scale and pyramid (an octave's own scale is computed as today
+and not listed): the correlation of the margins, the mean and spread of the change in margin
+units, and how many of today's hot windows (margin above the plan's threshold) stay hot and how
+many others become hot.
 """
 
 from __future__ import annotations
@@ -74,6 +72,7 @@ def band_margins(work: np.ndarray, model, k: int) -> dict[str, np.ndarray] | Non
     recomputed from crops of its band, and each shared pyramid's."""
     import cv2
 
+    from vehicle_detection.features import extract_features
     from vehicle_detection.search import _band
 
     cfg, plan = model.config, model.detector_config.plan
@@ -85,10 +84,10 @@ def band_margins(work: np.ndarray, model, k: int) -> dict[str, np.ndarray] | Non
     rr, cc = np.meshgrid(band.rows * ppc, band.cols * ppc, indexing="ij")
     corners = np.stack([cc.ravel(), rr.ravel()], axis=1)
     today_patches = crops(band.image, corners, side)
-    today = model.decision_function(_features(today_patches, model))
+    today = model.decision_function(extract_features(today_patches, cfg))
     out = {"today": today}
     # the band's region at full resolution, padded as the band was (mirrored beyond the frame)
-    h, w = work.shape[:2]
+    w = work.shape[1]
     y1 = band.y0 + round(band.image.shape[0] * band.sy)
     left, right = max(0, -band.x0), max(0, band.x0 + round(band.image.shape[1] * band.sx) - w)
     region = work[band.y0 : y1, max(0, band.x0) : min(w, band.x0 + round(band.image.shape[1] * band.sx))]
@@ -107,12 +106,6 @@ def band_margins(work: np.ndarray, model, k: int) -> dict[str, np.ndarray] | Non
         new_hog = hog_margin(crops(image, at, round(side * f)), round(ppc * f), model)
         out[name] = today - old_hog + new_hog
     return out
-
-
-def _features(patches: np.ndarray, model) -> np.ndarray:
-    from vehicle_detection.features import extract_features
-
-    return extract_features(patches, model.config)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -135,8 +128,8 @@ def main(argv: list[str] | None = None) -> None:
         work, _ = working_frame(frame, plan.reference_height)
         found = search(work, model, plan, all_windows=True)
         for k, s in enumerate(plan.scales):
-            margins = band_margins(work, model, k)
-            if margins is None or s.scale == 1:
+            margins = None if s.scale == 1 else band_margins(work, model, k)  # scale 1: an octave, as today
+            if margins is None:
                 continue
             today = margins.pop("today")
             worst = max(worst, float(np.abs(today - found.score[found.data["scale_index"] == k]).max()))
