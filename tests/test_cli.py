@@ -80,12 +80,13 @@ def csv_rows(path: Path) -> list[str]:
 # ----------------------------------------------------------------------------------------------
 
 OPTIONS = {
-    None: ["--version", "download", "train", "sweep", "detect", "evaluate", "mine-negatives", "Exit codes", "2 usage", "3 bad input",
+    None: ["--version", "download", "train", "refine", "sweep", "detect", "evaluate", "mine-negatives", "Exit codes", "2 usage", "3 bad input",
            "4 bad model", "5 output refused"],
     "download": ["--data-dir", "--no-progress", "--debug"],
     "train": ["--data-dir", "--model", "--C", "--drop-duplicates", "--extra-negatives", "--seed", "--json", "--overwrite", "--color-space",
               "--hog-channels", "--orientations", "--pixels-per-cell", "--cells-per-block", "--spatial-size",
               "--hist-bins", "--debug"],
+    "refine": ["--labels", "--out", "--model", "--alpha", "--json", "--overwrite", "--debug"],
     "sweep": ["--data-dir", "--color-spaces", "--hog-channels", "--orientations", "--pixels-per-cell",
               "--cells-per-block", "--color-features", "--subsample", "--jobs", "--json", "--debug"],
     "detect": ["input", "--out", "--boxes", "--model", "--overwrite", "--no-progress", "--debug"],
@@ -124,6 +125,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
     (d / "bad.json").write_text('{"frames": {"0": {"cars": [[1, 2, 3]]')
     (d / "empty_labels.json").write_text('{"frames": {}}')
     (d / "far.json").write_text('{"frames": {"0": {"cars": []}, "20": {"cars": [[0, 0, 10, 10]]}}}')
+    (d / "no_cars.json").write_text(json.dumps({"video": str(TEST_VIDEO), "frames": {"0": {"cars": [], "ignore": []}}}))
     (d / "a_file").write_text("I am a file, not a folder\n")
     model = default_model_path().read_bytes()
     (d / "model.npz").write_bytes(model)
@@ -180,10 +182,14 @@ CASES = {
     "labels-beyond-video": (["evaluate", "--video", "clip8.mp4", "--labels", "far.json"], 3,
                             ["far.json: labels frame(s) 20, but clip8.mp4 has only 8 decoded frames"], [], True),
     "missing-data": (["train", "--data-dir", "nowhere"], 3, ["nowhere: data folder not found"], [], False),
+    "refine-no-cars": (["refine", "--labels", "no_cars.json", "--out", "refined.npz"], 3,
+                       ["no_cars.json: no labelled cars to fit the box refinement on"], [], False),
     # 4: bad model
     "missing-model": (["detect", "street.jpg", "--model", "gone.npz"], 4, ["gone.npz: model file not found"], [], True),
     "tampered-model": (["detect", "street.jpg", "--model", "tampered.npz"], 4, ["tampered.npz: unreadable model file"], ["street.jpg"], True),
     "pickled-model": (["detect", "street.jpg", "--model", "evil.npz"], 4, ["evil.npz: unreadable model file"], [], True),
+    "refine-tampered-base": (["refine", "--labels", "no_cars.json", "--model", "tampered.npz", "--out", "refined.npz"], 4,
+                             ["tampered.npz: unreadable model file"], ["tampered.npz"], False),
     # 5: output refused
     "out-is-input-overwrite": (["detect", "street.jpg", "--out", "sub/../street.jpg", "--overwrite"], 5,
                                ["output would overwrite the input"], ["street.jpg"], True),
@@ -193,6 +199,10 @@ CASES = {
                        ["clip.mp4: output would overwrite the input"], ["clip.mp4"], True),
     "boxes-is-model": (["detect", "street.jpg", "--out", "m.png", "--model", "model.npz", "--boxes", "model.npz",
                         "--overwrite"], 5, ["model.npz: output would overwrite the input"], ["model.npz"], True),
+    "refine-over-base": (["refine", "--labels", "no_cars.json", "--model", "model.npz", "--out", "model.npz", "--overwrite"], 5,
+                         ["model.npz: output would overwrite the input"], ["model.npz"], False),
+    "refine-over-labels": (["refine", "--labels", "no_cars.json", "--out", "no_cars.json", "--overwrite"], 5,
+                           ["no_cars.json: output would overwrite the input"], ["no_cars.json"], False),
     "model-over-archive": (["train", "--data-dir", "data", "--model", "data/vehicles.zip", "--overwrite"], 5,
                            ["vehicles.zip: output would overwrite the input"], ["data/vehicles.zip"], False),
     "out-exists": (["detect", "street.jpg", "--out", "existing.png"], 5, ["existing.png: output exists; pass --overwrite"],
@@ -467,6 +477,35 @@ def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_p
     assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
     tracker = loaded.detector_config.tracker
     assert tracker.window_inset == (0.0, 0.0, 0.0, 0.0) and tracker.cluster_iou > 0 and tracker.box_vote > 0
+
+
+def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsys):
+    from vehicle_detection.classifier import VehicleClassifier, load_default_model
+
+    labels = REPO / "dev_set" / "clip_A.json"  # 26 frames, 52 cars of the shipped clip
+    out = tmp_path / "refined.npz"
+    assert main(["refine", "--labels", str(labels), "--out", str(out), "--json"]) == 0
+    summary = last_json(capsys.readouterr().out)
+    assert summary == {"n_frames": 26, "n_cars": 52, "alpha": 1000.0, "seconds": summary["seconds"], "model": str(out)}
+    base, refined = load_default_model(), VehicleClassifier.load(out)
+    # The classifier, the search and the tracker settings are the base model's; the refinement is new.
+    assert np.array_equal(refined.weights, base.weights) and refined.bias == base.bias
+    assert refined.detector_config == base.detector_config
+    assert not np.allclose(refined.box_regressor.coef, base.box_regressor.coef)
+    assert refined.metrics["box_refinement"]["labels"] == [str(labels)]
+    # Fitted to these frames' cars only, its boxes fit them better than the base model's (fitted
+    # to two cameras' frames): more matches at IoU 0.7.
+    scores = []
+    for model in (out, None):
+        assert main(["evaluate", "--labels", str(labels), "--json", "--no-progress"] + (["--model", str(model)] if model else [])) == 0
+        scores.append(last_json(capsys.readouterr().out)["all"]["at_iou_0.7"]["tp"])
+    assert scores[0] > scores[1]
+    # A second run does not replace the model unless told to; the fit is deterministic.
+    before = out.read_bytes()
+    assert main(["refine", "--labels", str(labels), "--out", str(out)]) == 5
+    assert out.read_bytes() == before
+    assert main(["refine", "--labels", str(labels), "--out", str(out), "--overwrite"]) == 0
+    assert np.array_equal(VehicleClassifier.load(out).box_regressor.coef, refined.box_regressor.coef)
 
 
 @needs_archives

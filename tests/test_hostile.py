@@ -961,7 +961,7 @@ def test_straight_road_frames_giving_an_absurd_view_are_an_input_error():
 
 
 # ----------------------------------------------------------------------------------------------
-# p. Labels files, through evaluate, train --labels and mine-negatives: exit 3, one line naming
+# p. Labels files, through evaluate, train --labels, mine-negatives and refine: exit 3, one line naming
 #    the file (and the frame and box), no model and no negatives written
 # ----------------------------------------------------------------------------------------------
 
@@ -986,7 +986,7 @@ def labelled_inputs(tmp_path_factory):
 
 
 CAR = [100, 400, 300, 550]
-LABEL_COMMANDS = ("evaluate", "train", "mine")
+LABEL_COMMANDS = ("evaluate", "train", "mine", "refine")
 LABELS_CASES = [
     # (case, video, frames or raw text, commands, fragment of the one-line error)
     ("box_beyond_the_frame", "clip.mp4", {"0": {"cars": [[1200, 600, 1500, 900]]}}, LABEL_COMMANDS,
@@ -1043,6 +1043,8 @@ def _labels_argv(command: str, labels: Path, root: Path, out: Path) -> list:
         return ["evaluate", "--labels", labels, "--no-progress"]
     if command == "train":
         return ["train", "--data-dir", root / "data", "--labels", labels, "--model", out / "model.npz"]
+    if command == "refine":
+        return ["refine", "--labels", labels, "--out", out / "model.npz"]
     return ["mine-negatives", "--labels", labels, "--out", out / "negatives", "--no-progress"]
 
 

@@ -1,6 +1,6 @@
 """The ``vehicle-detection`` command.
 
-Subcommands: ``download``, ``train``, ``sweep``, ``calibrate``, ``detect``, ``report``, ``evaluate``, ``mine-negatives``,
+Subcommands: ``download``, ``train``, ``refine``, ``sweep``, ``calibrate``, ``detect``, ``report``, ``evaluate``, ``mine-negatives``,
 each in a module of its own (imported when it runs, so that ``--help`` and the other commands do
 not load what one command needs). Errors a user can cause, usage errors included, print one line
 on stderr (``vehicle-detection: error: ...``) and exit non-zero; ``--debug`` prints the traceback
@@ -34,6 +34,7 @@ __all__ = ["main", "COMMANDS"]
 COMMANDS = {
     "download": "download",
     "train": "train",
+    "refine": "refine",
     "sweep": "sweep",
     "calibrate": "calibrate",
     "detect": "detect",

@@ -109,7 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_add_download, _add_train, _add_sweep, _add_calibrate, _add_detect, _add_report, _add_evaluate, _add_mine_negatives):
+    for add in (_add_download, _add_train, _add_refine, _add_sweep, _add_calibrate, _add_detect, _add_report, _add_evaluate,
+                _add_mine_negatives):
         add(sub)
     return parser
 
@@ -141,6 +142,26 @@ def _add_train(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")
     _add_feature_options(p)
+    _add_common(p)
+
+
+def _add_refine(sub) -> None:
+    p = sub.add_parser(
+        "refine",
+        help="fit a model's box refinement to hand-labelled frames of your own camera (no training data needed)",
+        description="Fits the box refinement (the map from a hot window's features to its car's four edges) to the cars "
+        "of hand-labelled frames of your camera, and saves the model with it; the classifier, the search plan and the "
+        "tracker settings stay the base model's. A refinement fitted to one camera fits another camera's cars poorly "
+        "(writeup 3.4): label about 25 frames of yours with 50 cars or more (format: dev_set/README.md); far fewer "
+        "cars fit worse than the base model. Never pass frames you score later.",
+    )
+    p.add_argument("--labels", required=True, nargs="+", metavar="L.json", help="annotation JSON file(s) of your camera's frames")
+    p.add_argument("--out", required=True, metavar="MODEL.npz", help="where to save the refined model")
+    p.add_argument("--model", default=None, help="base model file (default: the embedded model)")
+    p.add_argument("--alpha", type=_positive_float, default=None,
+                   help="ridge penalty of the refinement (default: the base model's, else 1000)")
+    p.add_argument("--json", action="store_true", help="print a summary as one JSON object on stdout (the human lines go to stderr)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing model file (never an input)")
     _add_common(p)
 
 
