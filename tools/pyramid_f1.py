@@ -38,13 +38,11 @@ APPROXIMATED = {1.5: 1, 3.0: 2}  # scale -> the octave its HOG is taken from
 def approximated_features(work, model, plan, k, control=False):
     """Feature vectors of every window of the plan's scale ``k`` (the search's order), with the
     HOG from the scale's octave."""
-    import cv2
-
     from vehicle_detection.features import convert_color, extract_features, hog_features, hog_input
     from vehicle_detection.search import _band
 
     sys.path.insert(0, str(REPO / "tools"))
-    from pyramid_margins import crops
+    from pyramid_margins import crops, octave_patches
 
     cfg, s = model.config, plan.scales[k]
     band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
@@ -54,18 +52,8 @@ def approximated_features(work, model, plan, k, control=False):
     feats = extract_features(crops(band.image, corners, side), cfg)
     if control:
         return feats
-    octave = APPROXIMATED[s.scale]
-    w = work.shape[1]
-    x1, y1 = band.x0 + round(band.image.shape[1] * band.sx), band.y0 + round(band.image.shape[0] * band.sy)
-    region = work[band.y0 : y1, max(0, band.x0) : min(w, x1)]
-    if band.x0 < 0 or x1 > w:  # mirrored beyond the frame, as the band was
-        region = cv2.copyMakeBorder(region, 0, 0, max(0, -band.x0), max(0, x1 - w), cv2.BORDER_REFLECT_101)
-    if octave != 1:
-        region = cv2.resize(region, (round(region.shape[1] / octave), round(region.shape[0] / octave)), interpolation=cv2.INTER_AREA)
-    f = s.scale / octave
-    at = np.rint(corners * [band.sx, band.sy] / octave).astype(np.int64)
-    big = dataclasses.replace(cfg, window=round(side * f), pixels_per_cell=round(ppc * f))
-    patches = crops(region, at, big.window)
+    patches, cell = octave_patches(work, band, corners, s.scale, APPROXIMATED[s.scale], cfg)
+    big = dataclasses.replace(cfg, window=patches.shape[1], pixels_per_cell=cell)
     feats[:, cfg.layout()["hog"]] = hog_features(hog_input(convert_color(patches, cfg.color_space), big), big)
     return feats
 

@@ -64,14 +64,30 @@ def hog_margin(patches: np.ndarray, cell: int, model) -> np.ndarray:
     return hog.astype(np.float64) @ model.weights[cfg.layout()["hog"]]
 
 
+def octave_patches(work: np.ndarray, band, corners: np.ndarray, scale: float, octave: int, config) -> tuple[np.ndarray, int]:
+    """The windows of a band of ``scale`` (band-pixel ``corners``, the search's order) cut from its
+    region of the working frame at octave ``octave`` (the frame resized by ``1/octave``), and the
+    cell size that gives them the band's cell grid: ``(patches (n, side, side, 3), cell)``."""
+    import cv2
+
+    w = work.shape[1]
+    x1, y1 = band.x0 + round(band.image.shape[1] * band.sx), band.y0 + round(band.image.shape[0] * band.sy)
+    region = work[band.y0 : y1, max(0, band.x0) : min(w, x1)]
+    if band.x0 < 0 or x1 > w:  # mirrored beyond the frame, as the band was
+        region = cv2.copyMakeBorder(region, 0, 0, max(0, -band.x0), max(0, x1 - w), cv2.BORDER_REFLECT_101)
+    if octave != 1:
+        region = cv2.resize(region, (round(region.shape[1] / octave), round(region.shape[0] / octave)), interpolation=cv2.INTER_AREA)
+    f = scale / octave
+    at = np.rint(corners * [band.sx, band.sy] / octave).astype(np.int64)
+    return crops(region, at, round(config.window * f)), round(config.pixels_per_cell * f)
+
+
 PYRAMIDS = {"one pass": lambda s: 1, "octaves": lambda s: int(2 ** np.floor(np.log2(s)))}
 
 
 def band_margins(work: np.ndarray, model, k: int) -> dict[str, np.ndarray] | None:
     """Margins of the windows of the plan's scale ``k`` in the working frame: the search's, today's
     recomputed from crops of its band, and each shared pyramid's."""
-    import cv2
-
     from vehicle_detection.features import extract_features
     from vehicle_detection.search import _band
 
@@ -86,25 +102,13 @@ def band_margins(work: np.ndarray, model, k: int) -> dict[str, np.ndarray] | Non
     today_patches = crops(band.image, corners, side)
     today = model.decision_function(extract_features(today_patches, cfg))
     out = {"today": today}
-    # the band's region at full resolution, padded as the band was (mirrored beyond the frame)
-    w = work.shape[1]
-    y1 = band.y0 + round(band.image.shape[0] * band.sy)
-    left, right = max(0, -band.x0), max(0, band.x0 + round(band.image.shape[1] * band.sx) - w)
-    region = work[band.y0 : y1, max(0, band.x0) : min(w, band.x0 + round(band.image.shape[1] * band.sx))]
-    if left or right:
-        region = cv2.copyMakeBorder(region, 0, 0, left, right, cv2.BORDER_REFLECT_101)
     old_hog = hog_margin(today_patches, ppc, model)
     for name, octave_of in PYRAMIDS.items():
         octave = octave_of(s.scale)
         if octave == s.scale:
             continue  # an octave's own scale: computed as today
-        image = region
-        if octave != 1:
-            image = cv2.resize(region, (round(region.shape[1] / octave), round(region.shape[0] / octave)), interpolation=cv2.INTER_AREA)
-        f = s.scale / octave
-        at = np.rint(corners * [band.sx, band.sy] / octave).astype(np.int64)
-        new_hog = hog_margin(crops(image, at, round(side * f)), round(ppc * f), model)
-        out[name] = today - old_hog + new_hog
+        patches, cell = octave_patches(work, band, corners, s.scale, octave, cfg)
+        out[name] = today - old_hog + hog_margin(patches, cell, model)
     return out
 
 
