@@ -47,7 +47,6 @@ def model_with(variant: str, folder: Path) -> Path | None:
     if variant == "embedded":
         return None
     import vehicle_detection as vd
-    from vehicle_detection.training import with_box_refinement
 
     model = vd.load_default_model()
     pairs = {}
@@ -66,30 +65,30 @@ def model_with(variant: str, folder: Path) -> Path | None:
         tracker = dataclasses.replace(config.tracker, **{k: float(v) for k, v in pairs.items()})
     except (TypeError, ValueError) as exc:
         raise SystemExit(f"{variant!r}: {exc}") from None
-    if files:
-        # refit as the embedded refinement was fitted, unless told otherwise
-        alpha = float(alpha) if alpha is not None else model.metrics.get("box_refinement", {}).get("alpha", 1000.0)
-        model = with_box_refinement(model, [vd.load_annotations(p) for p in files], alpha=alpha,
-                                    cluster_iou=tracker.cluster_iou, box_vote=tracker.box_vote)
+    path = folder / f"model_{len(list(folder.iterdir()))}.npz"
+    if files:  # refit by the command line, as a user would (the embedded model's penalty unless told)
+        cli("refine", "--labels", *map(str, files), "--out", str(path), *(["--alpha", alpha] if alpha is not None else []))
+        model = vd.VehicleClassifier.load(path)
     if refine == "none":
         from vehicle_detection.tracker import TrackerConfig
 
         tracker = dataclasses.replace(tracker, window_inset=TrackerConfig().window_inset, cluster_iou=0.0)
         model = model.replace(box_regressor=None)
     model = model.replace(detector_config=model.detector_config.replace(tracker=tracker))
-    path = folder / f"model_{len(list(folder.iterdir()))}.npz"
-    model.save(path)
+    model.save(path, overwrite=True)
     return path
 
 
-def evaluate(labels: list[Path], model: Path | None) -> str:
-    cmd = [sys.executable, "-m", "vehicle_detection.cli", "evaluate", "--labels", *map(str, labels), "--json", "--no-progress"]
-    if model is not None:
-        cmd += ["--model", str(model)]
-    done = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+def cli(*args: str) -> str:
+    """Run ``vehicle-detection ARGS`` from the repository; its standard output."""
+    done = subprocess.run([sys.executable, "-m", "vehicle_detection.cli", *args], capture_output=True, text=True, cwd=REPO)
     if done.returncode:
-        raise SystemExit(f"evaluate failed ({done.returncode}): {done.stderr.strip()}")
-    report = json.loads(done.stdout)
+        raise SystemExit(f"{args[0]} failed ({done.returncode}): {done.stderr.strip()}")
+    return done.stdout
+
+
+def evaluate(labels: list[Path], model: Path | None) -> str:
+    report = json.loads(cli("evaluate", "--labels", *map(str, labels), "--json", "--no-progress", *(["--model", str(model)] if model else [])))
     a, b = report["all"]["at_iou_0.5"], report["all"]["at_iou_0.7"]
     line = f"F1 {a['f1']:.3f} / {b['f1']:.3f}, mean IoU {a['mean_iou']:.3f} (tp {a['tp']}, fp {a['fp']}, fn {a['fn']})"
     tracks = [f["tracking"] for f in report["files"].values() if "tracking" in f]
