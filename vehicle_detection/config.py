@@ -81,6 +81,7 @@ class DetectorConfig:
             overhang=0.0,
             horizon=None,
             coarse_margin=None,
+            window_border="crop",
         )
         tracker = TrackerConfig(
             decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),

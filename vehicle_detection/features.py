@@ -60,6 +60,7 @@ __all__ = [
     "hog_image",
     "RegionHOG",
     "region_hog",
+    "region_blocks",
 ]
 
 #: Bump when the numbers a given :class:`FeatureConfig` produces change; saved with each model.
@@ -816,3 +817,108 @@ def region_hog(image: np.ndarray, config: FeatureConfig, out: np.ndarray | None 
     v = np.empty((len(channels), 3, 3, n_cr, n_cc, nb), np.float64) if out is None else out
     _region_variants(img, channels, _orientation_lut(nb, config.signed), ppc, nb, v)
     return RegionHOG(v[0] if single else v)
+
+
+@njit(nogil=True)
+def _region_cells(image, channels, lut, ppc, nb, cells):
+    """Cell histograms of chosen channels of a region, with the region's own gradient everywhere.
+
+    image (H, W, C) uint8; cells (len(channels), H // ppc, W // ppc, nb) float32, overwritten.
+    Central differences, zero on the region's border only (scikit-image's convention for the
+    region as one image). A row of cells is summed in float32 accumulators that stay in the
+    fastest cache; bin ``nb`` collects the votes counted in no bin, without a branch.
+    """
+    h, w = image.shape[0], image.shape[1]
+    n_ch, n_cr, n_cc = cells.shape[0], cells.shape[1], cells.shape[2]
+    acc = np.empty((n_ch, n_cc, nb + 1), np.float32)
+    for cy in range(n_cr):
+        acc[:] = 0.0
+        for y in range(cy * ppc, (cy + 1) * ppc):
+            inner_y = 0 < y < h - 1
+            up, down = (y - 1, y + 1) if inner_y else (y, y)
+            for cx in range(n_cc):
+                for rx in range(ppc):
+                    x = cx * ppc + rx
+                    inner_x = 0 < x < w - 1
+                    left, right = (x - 1, x + 1) if inner_x else (x, x)
+                    for k in range(n_ch):
+                        ch = channels[k]
+                        gx = np.int32(image[y, right, ch]) - np.int32(image[y, left, ch])
+                        gy = np.int32(image[down, x, ch]) - np.int32(image[up, x, ch])
+                        acc[k, cx, lut[gy + 255, gx + 255]] += np.float32(math.sqrt(np.float32(gx * gx + gy * gy)))
+        for k in range(n_ch):
+            for cx in range(n_cc):
+                for o in range(nb):
+                    cells[k, cy, cx, o] = acc[k, cx, o]
+
+
+@njit(nogil=True, fastmath=True)
+def _block_map(cells, cpb, blocks):
+    """Every block of a region, L2-Hys normalised once (as :func:`_gather_block` does one block).
+
+    cells (C, n_cr, n_cc, nb) float32; blocks (C, n_cr - cpb + 1, n_cc - cpb + 1, cpb * cpb * nb)
+    float32, overwritten, in scikit-image's order within a block (cell row, cell column, bin).
+    """
+    n_ch, nb = cells.shape[0], cells.shape[3]
+    n_br, n_bc, bs = blocks.shape[1], blocks.shape[2], blocks.shape[3]
+    clip = np.float32(0.2)
+    for k in range(n_ch):
+        for r in range(n_br):
+            for c in range(n_bc):
+                out = blocks[k, r, c]
+                s1 = 0.0
+                i = 0
+                for a in range(cpb):
+                    for b in range(cpb):
+                        for o in range(nb):
+                            v = cells[k, r + a, c + b, o]
+                            out[i] = v
+                            s1 += v * v
+                            i += 1
+                inv1 = np.float32(1.0 / math.sqrt(s1 + 1e-10))
+                s2 = 0.0
+                for j in range(bs):
+                    v = min(out[j] * inv1, clip)
+                    out[j] = v
+                    s2 += v * v
+                inv2 = np.float32(1.0 / math.sqrt(s2 + 1e-10))
+                for j in range(bs):
+                    out[j] *= inv2
+
+
+def region_blocks(image: np.ndarray, config: FeatureConfig, cells: np.ndarray | None = None,
+                  out: np.ndarray | None = None) -> np.ndarray:
+    """The normalised HOG blocks of a whole search region, computed once for all its windows.
+
+    The gradient is the region's own everywhere but on the region's border: a window of the
+    region sees, across its own border, the pixels around it (as detectors computing the HOG of a
+    whole image do), where a cropped patch sees none (:func:`hog_features`, what the training
+    patches give). A window's HOG is its blocks, in order; only the cells along its border differ
+    from its crop's.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+        The region after :func:`hog_input`.
+    config : FeatureConfig
+    cells, out : ndarray of float32, optional
+        Work arrays of shapes ``(n_channels, H // ppc, W // ppc, orientations)`` and the result's,
+        reused across frames by the search.
+
+    Returns
+    -------
+    ndarray of float32, shape (n_channels, H // ppc - cpb + 1, W // ppc - cpb + 1, cpb * cpb * orientations)
+        Block ``[k, r, c]`` of channel ``config.hog_channels[k]`` has its top-left cell at
+        cell row ``r``, column ``c``.
+    """
+    img = np.ascontiguousarray(image)
+    channels = np.array(config.hog_channels, dtype=np.int64)
+    ppc, nb, cpb = config.pixels_per_cell, config.orientations, config.cells_per_block
+    n_cr, n_cc = img.shape[0] // ppc, img.shape[1] // ppc
+    if cells is None:
+        cells = np.empty((len(channels), n_cr, n_cc, nb), np.float32)
+    if out is None:
+        out = np.empty((len(channels), max(n_cr - cpb + 1, 0), max(n_cc - cpb + 1, 0), cpb * cpb * nb), np.float32)
+    _region_cells(img, channels, _orientation_lut(nb, config.signed), ppc, nb, cells)
+    _block_map(cells, cpb, out)
+    return out

@@ -39,7 +39,18 @@ import numpy as np
 
 from ._jit import njit
 from .detections import Detections
-from .features import FeatureConfig, _cell_squares, _clipped_block, _gather_block, convert_color, hog_input, region_hog
+from .features import (
+    FeatureConfig,
+    _block_map,
+    _cell_squares,
+    _clipped_block,
+    _gather_block,
+    _orientation_lut,
+    _region_cells,
+    convert_color,
+    hog_input,
+    region_hog,
+)
 from .io.images import as_rgb_uint8, check_frame_shape
 from .refine import working_frame
 
@@ -157,6 +168,14 @@ class SearchPlan:
         a hit's four coarse neighbours all score more than ``coarse_margin`` below the
         threshold. Windows not scored are reported with a margin of ``-inf`` by
         ``search(all_windows=True)``, which scores every window whatever this says.
+    window_border : {"frame", "crop"}
+        What a window's HOG sees across its border. ``"frame"`` (the default): the frame's own
+        gradient there, as detectors that compute the HOG of a whole image do; each band's
+        blocks are then normalised once for all its windows
+        (:func:`~vehicle_detection.features.region_blocks`). ``"crop"``: no gradient across the
+        border, exactly as the window's cropped patch gives it (the training patches have no
+        pixels around them); about twice the work. Only the cells along a window's border
+        differ between the two. Plans saved before this setting existed load with ``"crop"``.
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
@@ -171,6 +190,7 @@ class SearchPlan:
     horizon_height: int = 96
     track_margin: float = 0.5
     coarse_margin: float | None = 1.5
+    window_border: str = "frame"
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
@@ -186,6 +206,8 @@ class SearchPlan:
             object.__setattr__(self, "coarse_margin", float(c))
         if not 0.0 <= self.track_margin <= 10.0:
             raise ValueError(f"track_margin must be in [0, 10], got {self.track_margin}")
+        if self.window_border not in ("frame", "crop"):
+            raise ValueError(f"window_border must be 'frame' or 'crop', got {self.window_border!r}")
         if not self.scales:
             raise ValueError("a search plan needs at least one scale")
         if not 64 <= self.reference_height <= 1440:
@@ -224,6 +246,7 @@ class SearchPlan:
             "horizon_height": self.horizon_height,
             "track_margin": self.track_margin,
             "coarse_margin": self.coarse_margin,
+            "window_border": self.window_border,
         }
 
     @classmethod
@@ -232,15 +255,17 @@ class SearchPlan:
 
         Plans saved before the search schedule existed (without its four fields) load with the
         defaults: every frame searched whole; plans without ``reference_horizon``, with the
-        project camera's; plans without ``coarse_margin`` score every window, as they did.
+        project camera's; plans without ``coarse_margin`` score every window, as they did; plans
+        without ``window_border``, with ``"crop"`` (the only search there was).
         """
         try:
             required = {"scales", "threshold", "reference_height", "overhang", "horizon"}
             optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon",
-                        "overhang_min_scale", "coarse_margin"}
+                        "overhang_min_scale", "coarse_margin", "window_border"}
             if not required <= set(d) <= required | optional:
                 raise ValueError(f"fields {sorted(d)}")
-            schedule = {"overhang_min_scale": 0.0, "coarse_margin": None, **{k: d[k] for k in optional & set(d)}}
+            schedule = {"overhang_min_scale": 0.0, "coarse_margin": None, "window_border": "crop",
+                        **{k: d[k] for k in optional & set(d)}}
             for name in ("track_margin", "reference_horizon", "overhang_min_scale"):
                 if name in schedule:
                     schedule[name] = float(schedule[name])
@@ -500,6 +525,31 @@ def _score_hog(variants, cpb, weights, rows, cols, ss, out):
                                 out[wr, wc] += t * scale
 
 
+@njit(nogil=True, fastmath=True)
+def _score_blocks(blocks, weights, rows, cols, out):
+    """Add the HOG part of every window's margin to ``out`` (len(rows), len(cols)), from a block map.
+
+    blocks (C, n_br, n_bc, bs) float32 from :func:`~vehicle_detection.features.region_blocks`
+    (normalised once, whatever window holds them); weights (C, nbw, nbw, bs) float32; rows,
+    cols: the windows' top-left cells. Each window is the dot product of its ``nbw x nbw``
+    blocks with the weights.
+    """
+    n_ch, nbw, bs = weights.shape[0], weights.shape[1], weights.shape[3]
+    for wr in range(rows.shape[0]):
+        r0 = rows[wr]
+        for wc in range(cols.shape[0]):
+            c0 = cols[wc]
+            t = np.float32(0.0)
+            for k in range(n_ch):
+                for a in range(nbw):
+                    for b in range(nbw):
+                        block = blocks[k, r0 + a, c0 + b]
+                        w = weights[k, a, b]
+                        for j in range(bs):
+                            t += block[j] * w[j]
+            out[wr, wc] += t
+
+
 @njit(nogil=True)
 def _colour_sums(conv, f, ppc, hist_lut, bin_means, cell_scores):
     """One pass over the region for the colour features.
@@ -561,25 +611,15 @@ def _score_colour(bin_means, spatial_w, f, cell_scores, cpw, ppc, rows, cols, wi
 
 
 @njit(nogil=True, fastmath=True)
-def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_lut, ppc, cpw, rows, cols,
-                     cell_maps, done, out):
-    """Linear maps of the feature vectors of chosen windows, read off the band's features.
+def _hog_products_crop(variants, cpb, hog_w, rows, cols, out):
+    """The HOG part of :func:`_colour_products`'s maps, for windows seen as their crops.
 
-    The feature vector of the window whose top-left cell is ``(rows[i], cols[i])`` is the one
-    :func:`~vehicle_detection.features.extract_features` gives its patch: its blocks are
-    gathered from the cell variants with the window's border classes, its spatial bins are
-    ``bin_means`` and its histograms are counted on ``conv``. ``out[i, k]`` (n, K) gets its dot
-    products with ``hog_w[k]`` (K, C, nbw, nbw, bs), ``spatial_w[k]`` (K, size, size * 3) and
-    the histogram weights ``hist_lut[k]`` (K, 3, 256: the weight of each 8-bit value's bin).
-    The histogram part is summed over the window's cells: ``cell_maps`` (n_cr, n_cc, K) holds
-    each cell's share once ``done`` (n_cr, n_cc) says so (computed here when first needed).
+    Blocks are gathered from the cell variants with each window's border classes and normalised
+    (:func:`~vehicle_detection.features.region_hog`); ``out[i, k]`` (n, K) gets their dot
+    products with ``hog_w[k]`` (K, C, nbw, nbw, bs).
     """
     n_maps, n_ch, nbw, bs = hog_w.shape[0], hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
-    size = spatial_w.shape[1]
-    run = size * 3
-    means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
     block = np.empty(bs, np.float64)
-    with_hist = hist_lut.shape[0] == n_maps
     for i in range(rows.shape[0]):
         r0, c0 = rows[i], cols[i]
         for ch in range(n_ch):
@@ -593,6 +633,46 @@ def _window_products(variants, cpb, hog_w, bin_means, spatial_w, f, conv, hist_l
                         for j in range(bs):
                             t += block[j] * w[j]
                         out[i, k] += t
+
+
+@njit(nogil=True, fastmath=True)
+def _hog_products_frame(blocks, hog_w, rows, cols, out):
+    """:func:`_hog_products_crop` for windows that see the frame across their border: the blocks
+    are read off the band's block map (C, n_br, n_bc, bs) as they are."""
+    n_maps, n_ch, nbw, bs = hog_w.shape[0], hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
+    for i in range(rows.shape[0]):
+        r0, c0 = rows[i], cols[i]
+        for ch in range(n_ch):
+            for a in range(nbw):
+                for b in range(nbw):
+                    block = blocks[ch, r0 + a, c0 + b]
+                    for k in range(n_maps):
+                        w = hog_w[k, ch, a, b]
+                        t = 0.0
+                        for j in range(bs):
+                            t += block[j] * w[j]
+                        out[i, k] += t
+
+
+@njit(nogil=True, fastmath=True)
+def _colour_products(bin_means, spatial_w, f, conv, hist_lut, ppc, cpw, rows, cols, cell_maps, done, out):
+    """Linear maps of the colour part of chosen windows' feature vectors, read off the band's features.
+
+    The window whose top-left cell is ``(rows[i], cols[i])`` has the spatial bins ``bin_means``
+    and the histograms counted on ``conv``, as
+    :func:`~vehicle_detection.features.extract_features` gives them for its patch. ``out[i, k]``
+    (n, K) gets their dot products with ``spatial_w[k]`` (K, size, size * 3) and the histogram
+    weights ``hist_lut[k]`` (K, 3, 256: the weight of each 8-bit value's bin). The histogram
+    part is summed over the window's cells: ``cell_maps`` (n_cr, n_cc, K) holds each cell's
+    share once ``done`` (n_cr, n_cc) says so (computed here when first needed).
+    """
+    n_maps = out.shape[1]
+    size = spatial_w.shape[1]
+    run = size * 3
+    means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
+    with_hist = hist_lut.shape[0] == n_maps
+    for i in range(rows.shape[0]):
+        r0, c0 = rows[i], cols[i]
         if size:
             by0, x0 = r0 * ppc // f, (c0 * ppc // f) * 3
             for k in range(n_maps):
@@ -701,41 +781,55 @@ class _BandFeatures:
     """One band's features, shared by the kernels that score its windows."""
 
     conv: np.ndarray  # (h, w, 3) uint8, the model's colour space
-    variants: np.ndarray  # (C, 3, 3, n_cr, n_cc, nb) float32 HOG cell variants
+    variants: np.ndarray | None  # (C, 3, 3, n_cr, n_cc, nb) float32 HOG cell variants (window_border "crop")
     squares: np.ndarray | None  # (C, 3, 3, n_cr, n_cc) float64 their sums of squares
+    blocks: np.ndarray | None  # (C, n_br, n_bc, bs) float32 normalised blocks (window_border "frame")
     bin_means: np.ndarray  # (h // f, w // f, 3) float32 spatial-bin means
     cell_scores: np.ndarray | None  # (n_cr, n_cc) float64 histogram score of each cell
     f: int  # pixels per spatial bin
+    hog_blocks: bool = True  # False: the HOG blocks' part of the margins left out (the warm-up)
 
 
-def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bool) -> _BandFeatures:
+def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bool, frame: bool) -> _BandFeatures:
     cfg, folded = model.config, _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
-    ppc = cfg.pixels_per_cell
+    ppc, cpb, n_hc = cfg.pixels_per_cell, cfg.cells_per_block, len(cfg.hog_channels)
     n_cr, n_cc = conv.shape[0] // ppc, conv.shape[1] // ppc
-    # Cells are summed in float64 and stored in float32: half the memory traffic; margins stay
-    # within 1e-6 of the plain path's (float64 throughout).
-    variants = buffer("variants", (len(cfg.hog_channels), 3, 3, n_cr, n_cc, cfg.orientations), np.float32)
-    region_hog(hog_input(conv, cfg), cfg, out=variants)
-    squares = None
-    if hog_blocks:
-        squares = buffer("cell_squares", (len(cfg.hog_channels), 3, 3, n_cr, n_cc))
-        for ch in range(len(cfg.hog_channels)):
-            _cell_squares(variants[ch], squares[ch])
+    variants = squares = blocks = None
+    if frame:
+        cells = buffer("cells", (n_hc, n_cr, n_cc, cfg.orientations), np.float32)
+        _region_cells(hog_input(conv, cfg), np.array(cfg.hog_channels, np.int64),
+                      _orientation_lut(cfg.orientations, cfg.signed), ppc, cfg.orientations, cells)
+        blocks = buffer("blocks", (n_hc, n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size), np.float32)
+        if hog_blocks:
+            _block_map(cells, cpb, blocks)
+        else:
+            blocks.fill(0.0)  # the warm-up's blank search, without the block kernels
+    else:
+        # Cells are summed in float64 and stored in float32: half the memory traffic; margins
+        # stay within 1e-6 of the plain path's (float64 throughout).
+        variants = buffer("variants", (n_hc, 3, 3, n_cr, n_cc, cfg.orientations), np.float32)
+        region_hog(hog_input(conv, cfg), cfg, out=variants)
+        if hog_blocks:
+            squares = buffer("cell_squares", (n_hc, 3, 3, n_cr, n_cc))
+            for ch in range(n_hc):
+                _cell_squares(variants[ch], squares[ch])
     f = cfg.window // cfg.spatial_size if cfg.spatial_size else ppc
     bin_means = buffer("bin_means", (conv.shape[0] // f, conv.shape[1] // f, 3), np.float32)
     cell_scores = None
     if cfg.spatial_size or cfg.hist_bins:
         cell_scores = buffer("cell_scores", (n_cr, n_cc))
         _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
-    return _BandFeatures(conv, variants, squares, bin_means, cell_scores, f)
+    return _BandFeatures(conv, variants, squares, blocks, bin_means, cell_scores, f, hog_blocks)
 
 
 def _margins(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Margins of the windows at ``rows`` x ``cols`` (top-left cells, increasing): ``(len(rows), len(cols))``."""
     cfg, folded = model.config, _kernel_weights(model)
     out = np.zeros((len(rows), len(cols)))
-    if feats.squares is not None:
+    if feats.blocks is not None and feats.hog_blocks:
+        _score_blocks(feats.blocks, folded.hog, rows, cols, out)
+    elif feats.squares is not None:
         _score_hog(feats.variants, cfg.cells_per_block, folded.hog, rows, cols, feats.squares, out)
     if feats.cell_scores is not None:
         _score_colour(feats.bin_means, folded.spatial, feats.f, feats.cell_scores, cfg.cells_per_window, cfg.pixels_per_cell,
@@ -762,19 +856,23 @@ def _two_stage_margins(feats: _BandFeatures, model: VehicleClassifier, band: _Ba
 def _refine_products(feats: _BandFeatures, model: VehicleClassifier, band: _Band, index: np.ndarray) -> np.ndarray:
     """The box refinement's four edge maps (before its intercept) of the windows at flat ``index``: ``(n, 4)``."""
     cfg, refine = model.config, _kernel_weights(model).refine
-    n_cr, n_cc = feats.variants.shape[3], feats.variants.shape[4]
+    ppc = cfg.pixels_per_cell
+    n_cr, n_cc = feats.conv.shape[0] // ppc, feats.conv.shape[1] // ppc
     out = np.zeros((len(index), 4))
     if len(index):
-        _window_products(feats.variants, cfg.cells_per_block, refine[0], feats.bin_means, refine[1], feats.f, feats.conv,
-                         refine[2], cfg.pixels_per_cell, cfg.cells_per_window,
-                         band.rows[index // len(band.cols)], band.cols[index % len(band.cols)],
-                         np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), out)
+        rows, cols = band.rows[index // len(band.cols)], band.cols[index % len(band.cols)]
+        if feats.blocks is not None:
+            _hog_products_frame(feats.blocks, refine[0], rows, cols, out)
+        else:
+            _hog_products_crop(feats.variants, cfg.cells_per_block, refine[0], rows, cols, out)
+        _colour_products(feats.bin_means, refine[1], feats.f, feats.conv, refine[2], ppc, cfg.cells_per_window,
+                         rows, cols, np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), out)
     return out
 
 
 def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True,
                 refine_above: float | None = None,
-                cascade: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+                cascade: tuple[float, float] | None = None, frame: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Margins of the windows of ``band``, and the box refinement's products of the hot ones.
 
     Returns ``(margins, products)``: margins flat ``(n_windows,)``; with ``refine_above`` and a
@@ -786,10 +884,10 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
     :attr:`SearchPlan.coarse_margin` (windows not scored get ``-inf``); None scores every window.
     ``reuse``: work arrays kept for the next frame (whole bands). ``hog_blocks=False`` leaves out
     the HOG blocks' part of the margins (for the warm-up, which compiles that kernel in a helper
-    process meanwhile).
+    process meanwhile). ``frame``: the plan's ``window_border`` is ``"frame"``.
     """
     buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
-    feats = _band_features(band, model, buffer, hog_blocks)
+    feats = _band_features(band, model, buffer, hog_blocks, frame)
     if cascade is not None and hog_blocks:
         margins = _two_stage_margins(feats, model, band, *cascade).ravel()
     else:
@@ -828,15 +926,16 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
 
 
 def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray, refine_above: float | None = None,
-                      cascade: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+                      cascade: tuple[float, float] | None = None, frame: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`_score_band` of the band's windows where ``mask`` holds, flat like it.
 
     The other margins are -inf, or their margins where a crop or the whole band scored them
     anyway: callers keep the windows of ``mask`` only.
 
-    Windows see only their own pixels (the HOG gradient is zero on a window's border), so each
-    run of wanted columns is scored on a crop of the band holding just its windows, with the
-    same margins as the whole band gives.
+    Windows see only their own pixels and, with ``frame``, one pixel around them (the
+    gradient across their border), so each run of wanted columns is scored on a crop of the
+    band holding just its windows and that pixel (a whole cell above and to the left, so that the
+    cells stay where they are), with the same margins as the whole band gives.
     """
     cfg = model.config
     ppc, side = cfg.pixels_per_cell, cfg.window
@@ -846,16 +945,21 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray, r
     if not wanted.any():
         return out.ravel(), None if products is None else products.reshape(-1, 4)
     if wanted.all() and mask.any(axis=1).all():
-        return _score_band(band, model, refine_above=refine_above, cascade=cascade)
+        return _score_band(band, model, refine_above=refine_above, cascade=cascade, frame=frame)
     edges = np.flatnonzero(np.diff(np.r_[0, wanted.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):  # columns a..b-1
         rows_any = np.flatnonzero(mask[:, a:b].any(axis=1))
         r0, r1 = rows_any[0], rows_any[-1] + 1
         top, left = band.rows[r0] * ppc, band.cols[a] * ppc
-        image = band.image[top : band.rows[r1 - 1] * ppc + side, left : band.cols[b - 1] * ppc + side]
+        bottom, right = band.rows[r1 - 1] * ppc + side, band.cols[b - 1] * ppc + side
+        up = min(ppc, top) if frame else 0  # the context around the windows, where the band has it
+        back = min(ppc, left) if frame else 0
+        bottom, right = (min(bottom + 1, band.image.shape[0]), min(right + 1, band.image.shape[1])) if frame else (bottom, right)
+        image = band.image[top - up : bottom, left - back : right]
         sub = _Band(np.ascontiguousarray(image), 0, 0, band.sx, band.sy,
-                    band.rows[r0:r1] - band.rows[r0], band.cols[a:b] - band.cols[a])
-        margins, found = _score_band(sub, model, reuse=False, refine_above=refine_above, cascade=cascade)  # shapes vary
+                    band.rows[r0:r1] - band.rows[r0] + up // ppc, band.cols[a:b] - band.cols[a] + back // ppc)
+        margins, found = _score_band(sub, model, reuse=False, refine_above=refine_above, cascade=cascade,
+                                     frame=frame)  # shapes vary
         out[r0:r1, a:b] = margins.reshape(r1 - r0, b - a)
         if products is not None:
             products[r0:r1, a:b] = found.reshape(r1 - r0, b - a, 4)
@@ -902,17 +1006,18 @@ def search(
     refine = model.box_regressor is not None and not all_windows
     above = plan.threshold if refine else None
     cascade = None if all_windows or plan.coarse_margin is None else (plan.threshold, plan.coarse_margin)
+    border = plan.window_border == "frame"
     parts, windows, products = [], [], []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
         if around is None:
-            scores, found = _score_band(band, model, refine_above=above, cascade=cascade)
+            scores, found = _score_band(band, model, refine_above=above, cascade=cascade, frame=border)
             keep = slice(None) if all_windows else scores > plan.threshold
         else:
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
-            scores, found = _score_band_where(band, model, mask, refine_above=above, cascade=cascade)
+            scores, found = _score_band_where(band, model, mask, refine_above=above, cascade=cascade, frame=border)
             keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
         if refine:
