@@ -1,5 +1,8 @@
 """The plain search path, the reference the fast search is tested against (the oracle tests use it).
 
+For plans with ``window_border="frame"``, each window's HOG is cut from the gradients of its
+whole band (:func:`frame_hog_plain`), in NumPy, instead of from its crop.
+
 Kept with the tests, not in the package: nothing of the library calls it. :func:`slide_window`
 lists windows and :func:`classify_windows` crops, resizes and classifies each one;
 :func:`search_plain` does the same over a :class:`~vehicle_detection.search.SearchPlan`, one
@@ -14,7 +17,7 @@ import numpy as np
 
 from vehicle_detection.classifier import VehicleClassifier
 from vehicle_detection.detections import Detections
-from vehicle_detection.features import extract_features
+from vehicle_detection.features import _orientation_lut, convert_color, extract_features, hog_input
 from vehicle_detection.io.images import as_rgb_uint8
 from vehicle_detection.search import SearchPlan, _band, _band_boxes, _windows, _working_frame
 
@@ -97,9 +100,58 @@ def search_plain(frame: np.ndarray, model: VehicleClassifier, plan: SearchPlan |
         band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
-        patches = np.stack(
-            [band.image[r * ppc : r * ppc + side, c * ppc : c * ppc + side] for r in band.rows for c in band.cols]
-        )
-        scores = model.decision_function(extract_features(patches, cfg))
+        corners = [(r * ppc, c * ppc) for r in band.rows for c in band.cols]
+        patches = np.stack([band.image[y : y + side, x : x + side] for y, x in corners])
+        feats = extract_features(patches, cfg)
+        if plan.window_border == "frame":
+            feats[:, cfg.layout()["hog"]] = frame_hog_plain(band.image, corners, cfg)
+        scores = model.decision_function(feats)
         parts.append(_windows(_band_boxes(band, cfg, f, frame.shape), scores, k))
     return Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
+
+
+def frame_hog_plain(image: np.ndarray, corners, cfg) -> np.ndarray:
+    """HOG of windows that see the band's gradient across their border, one window at a time.
+
+    The gradient of the whole band (central differences, zero on the band's border), binned as
+    the patch path bins it; each window's cells are its 64 x 64 gradients' histograms, and each
+    block is L2-Hys normalised (scikit-image's order: block row, block column, cell row, cell
+    column, bin; channels one after the other).
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+        The band, RGB.
+    corners : list of (int, int)
+        Each window's top-left pixel ``(y, x)`` in the band.
+
+    Returns
+    -------
+    ndarray of float64, shape (len(corners), n_hog)
+    """
+    pixels = hog_input(convert_color(image, cfg.color_space), cfg).astype(np.int64)
+    ppc, nb, side = cfg.pixels_per_cell, cfg.orientations, cfg.window
+    lut = _orientation_lut(nb, cfg.signed)
+    n = side // ppc
+    cell_of = (np.arange(side)[:, None] // ppc) * n + np.arange(side)[None, :] // ppc  # (side, side)
+    out = []
+    for ch in cfg.hog_channels:
+        p = pixels[:, :, ch]
+        gx, gy = np.zeros_like(p), np.zeros_like(p)
+        gx[:, 1:-1] = p[:, 2:] - p[:, :-2]
+        gy[1:-1, :] = p[2:, :] - p[:-2, :]
+        mag, bins = np.hypot(gx, gy), lut[gy + 255, gx + 255].astype(np.int64)
+        per_channel = []
+        for y, x in corners:
+            votes = np.bincount((cell_of * (nb + 1) + bins[y : y + side, x : x + side]).ravel(),
+                                weights=mag[y : y + side, x : x + side].ravel(), minlength=n * n * (nb + 1))
+            cells = votes.reshape(n, n, nb + 1)[:, :, :nb]  # bin nb: votes counted in no bin
+            m = n - cfg.cells_per_block + 1
+            blocks = np.stack([cells[a : a + m, b : b + m] for a in range(cfg.cells_per_block) for b in range(cfg.cells_per_block)],
+                              axis=2).reshape(m, m, -1)
+            blocks = blocks / np.sqrt((blocks**2).sum(axis=-1, keepdims=True) + 1e-10)
+            blocks = np.minimum(blocks, 0.2)
+            blocks = blocks / np.sqrt((blocks**2).sum(axis=-1, keepdims=True) + 1e-10)
+            per_channel.append(blocks.ravel())
+        out.append(np.stack(per_channel))
+    return np.concatenate(out, axis=1)

@@ -189,9 +189,12 @@ def test_labelled_frames_give_vehicle_patches_grouped_by_blocks(tmp_path):
     assert not set(joined.groups[-2:].tolist()) & set(ds.groups.tolist())
 
 
-@pytest.mark.parametrize("index", [0, 3])
-def test_search_reads_the_refinement_off_the_features_it_scored_with(default_model, test_frames, index):
-    """The fast path's edge products equal those of the hot windows' own patches' features."""
+@pytest.mark.parametrize(("index", "border"), [(0, "frame"), (3, "frame"), (0, "crop")])
+def test_search_reads_the_refinement_off_the_features_it_scored_with(default_model, test_frames, index, border):
+    """The fast path's edge products equal those of the hot windows' features: their patches'
+    (``"crop"``), with the HOG cut from the band's gradients (``"frame"``)."""
+    from reference_search import frame_hog_plain
+
     from vehicle_detection.features import extract_features
     from vehicle_detection.search import _band, _band_patches, _score_band, _working_frame
 
@@ -201,13 +204,18 @@ def test_search_reads_the_refinement_off_the_features_it_scored_with(default_mod
         n_hot = 0
         for s in plan.scales:
             band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
-            margins, products = _score_band(band, model, reuse=False, refine_above=plan.threshold - 1.0)
+            margins, products = _score_band(band, model, reuse=False, refine_above=plan.threshold - 1.0,
+                                            frame=border == "frame")
             hot = margins > plan.threshold - 1.0
             assert np.array_equal(~np.isnan(products[:, 0]), hot)
             n_hot += hot.sum()
             if not hot.any():
                 continue
             features = extract_features(_band_patches(band, cfg, hot), cfg).astype(np.float64)
+            if border == "frame":
+                corners = [(band.rows[i // len(band.cols)] * cfg.pixels_per_cell, band.cols[i % len(band.cols)] * cfg.pixels_per_cell)
+                           for i in np.flatnonzero(hot)]
+                features[:, cfg.layout()["hog"]] = frame_hog_plain(band.image, corners, cfg)
             want = features @ model.box_regressor.coef.T
             np.testing.assert_allclose(products[hot], want, rtol=1e-4, atol=1e-5)
         assert n_hot > 5

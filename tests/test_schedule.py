@@ -35,18 +35,21 @@ def _claimed(windows: Detections, plan: SearchPlan, width: int, around: np.ndarr
     return edge | horizon | near
 
 
-def test_between_frames_search_is_the_claimed_windows_with_the_same_margins(default_model, test_frames):
+@pytest.mark.parametrize("border", ["frame", "crop"])
+def test_between_frames_search_is_the_claimed_windows_with_the_same_margins(default_model, test_frames, border):
     frame = test_frames[0]
-    full = search(frame, default_model, PLAN, all_windows=True)
+    plan = dataclasses.replace(PLAN, window_border=border)
+    full = search(frame, default_model, plan, all_windows=True)
     around = np.array([[700.0, 420.0, 860.0, 520.0]])
-    part = search(frame, default_model, PLAN, all_windows=True, around=around)
-    claimed = _claimed(full, PLAN, frame.shape[1], around)
+    part = search(frame, default_model, plan, all_windows=True, around=around)
+    claimed = _claimed(full, plan, frame.shape[1], around)
     assert 0 < claimed.sum() < len(full)
     assert _key(part) == _key(full[claimed])
-    np.testing.assert_array_equal(part.score, full.score[claimed])  # bit for bit: windows see only their pixels
+    # bit for bit: windows see only their pixels and, across their border, the pixel around them
+    np.testing.assert_array_equal(part.score, full.score[claimed])
     # thresholded: the hits of the full search among the claimed windows
-    hits = search(frame, default_model, PLAN, around=around)
-    assert _key(hits) == _key(full[claimed & (full.score > PLAN.threshold)])
+    hits = search(frame, default_model, plan, around=around)
+    assert _key(hits) == _key(full[claimed & (full.score > plan.threshold)])
 
 
 def test_between_frames_search_without_tracks_or_regions(default_model, test_frames):
@@ -94,7 +97,8 @@ def test_default_schedule_is_every_frame_and_old_plans_load():
     assert SearchPlan.from_dict(d) == PLAN
     old = {k: d[k] for k in ("scales", "threshold", "reference_height", "overhang", "horizon")}
     assert SearchPlan.from_dict(old) == dataclasses.replace(
-        PLAN, full_search_every=1, edge_width=160, horizon_height=96, track_margin=0.5, overhang_min_scale=0.0, coarse_margin=None)
+        PLAN, full_search_every=1, edge_width=160, horizon_height=96, track_margin=0.5, overhang_min_scale=0.0, coarse_margin=None,
+        window_border="crop")
     assert SearchPlan().overhang_min_scale == 2.0  # plans saved before it overhang at every scale, as they did
     for bad in (dict(full_search_every=0), dict(edge_width=-1), dict(track_margin=-0.1), dict(full_search_every=True)):
         with pytest.raises(ValueError):

@@ -14,18 +14,18 @@ search = importlib.import_module("vehicle_detection.search")
 
 
 def test_without_restores_the_kernels_and_zeroes_outputs():
-    before = (features._region_variants, search._score_hog, search._colour_sums, search._score_colour)
+    before = (search._region_cells, search._score_blocks, search._block_map, search._colour_sums, search._score_colour)
     with _warmup._without(_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS):
-        assert features._region_variants is _warmup._zero_last
+        assert search._region_cells is _warmup._zero_last
         out = np.ones(3)
-        search._score_hog(1, 2, out)
+        search._score_blocks(1, 2, out)
         assert not out.any()
-    assert (features._region_variants, search._score_hog, search._colour_sums, search._score_colour) == before
+    assert (search._region_cells, search._score_blocks, search._block_map, search._colour_sums, search._score_colour) == before
 
 
 def test_every_kernel_is_compiled_by_one_side():
     names = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS}
-    assert names == {"_region_variants", "_colour_sums", "_score_colour", "_score_hog", "_cell_squares"}
+    assert names == {"_region_cells", "_colour_sums", "_score_colour", "_score_blocks", "_block_map"}
     for mod, fn, prefix in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS:
         assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
 
@@ -52,9 +52,10 @@ def test_a_search_compiles_each_kernel_for_one_signature():
         "d = vd.Detector()\n"
         "for name in ('test1.jpg', 'test4.jpg'):\n"
         "    S.search(read_image('test_images/' + name), d.model)\n"
-        "kernels = [S._score_hog, S._score_colour, S._colour_sums, S._window_products, F._region_variants, S._cell_squares]\n"
+        "kernels = [S._score_blocks, S._score_colour, S._colour_sums, S._hog_products_frame, S._colour_products,\n"
+        "           S._region_cells, S._block_map]\n"
         "print([len(k.signatures) for k in kernels])\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[1])
-    assert out.stdout.strip() == "[1, 1, 1, 1, 1, 1]", out.stdout + out.stderr
+    assert out.stdout.strip() == "[1, 1, 1, 1, 1, 1, 1]", out.stdout + out.stderr

@@ -2,10 +2,12 @@
 
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
 kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
-process that compiles the HOG block kernel (normalising and scoring the blocks, the largest)
-into the cache while this process compiles the others, the HOG cells and the two colour
-kernels (a real band's scoring without the blocks, on a blank frame, so with exactly the
-argument types of a real search); this process then loads the helper's kernel from the cache.
+process that compiles the HOG block kernels (normalising the blocks and scoring the windows)
+into the cache while this process compiles the others, the HOG cells, the two colour kernels
+and the box refinement's (a real band's scoring without the blocks, on a blank frame, so with
+exactly the argument types of a real search); this process then loads the helper's kernels
+from the cache. The kernels are those of the default search (``window_border="frame"``); a
+plan with ``"crop"`` compiles its own on first use.
 The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
 (in the helper only: nothing is replaced here, so a search running in another thread meanwhile
 is unaffected). On a warm cache nothing happens here (the kernels load on first use), nor
@@ -37,18 +39,21 @@ _DONE = threading.Event()
 _LOCK = threading.Lock()
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
-    ("search", "_score_hog", "search._score_hog-"),
-    ("search", "_cell_squares", "features._cell_squares-"),  # defined in features, called through search
+    ("search", "_score_blocks", "search._score_blocks-"),
+    ("search", "_block_map", "features._block_map-"),  # defined in features, called through search
 )
 _MAIN_KERNELS = (
-    ("features", "_region_variants", "features._region_variants-"),
+    ("search", "_region_cells", "features._region_cells-"),
     ("search", "_colour_sums", "search._colour_sums-"),
     ("search", "_score_colour", "search._score_colour-"),
 )
 
 # Compiled here too, for models that refine their boxes (not replaced in the helper: a blank
 # frame has no hot window to refine).
-_REFINE_KERNELS = (("search", "_window_products", "search._window_products-"),)
+_REFINE_KERNELS = (
+    ("search", "_hog_products_frame", "search._hog_products_frame-"),
+    ("search", "_colour_products", "search._colour_products-"),
+)
 
 
 def _module(name: str):

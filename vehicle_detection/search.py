@@ -7,19 +7,24 @@ Two paths give the same answer:
   same over a :class:`SearchPlan`, one window at a time;
 * the **fast path**, used everywhere else (:func:`search`): per scale, the search region is
   resized and colour-converted once, the HOG cells of the whole region are computed once, the
-  scaler is folded into the SVM weights, and every window is scored in compiled passes: each
-  HOG block is normalised once per border class and dotted with the weights of every window
-  that holds it; spatial bins are block means shared by all windows; colour histograms become a
-  per-pixel weight map summed over cells. No Python loop over windows.
+  scaler is folded into the SVM weights, and every window is scored in compiled passes: with
+  :attr:`SearchPlan.window_border` ``"frame"`` (the default), every HOG block of the region is
+  normalised once and each window is the dot product of its blocks with the weights; with
+  ``"crop"``, each block is normalised once per border class (a window's crop has no gradient
+  across its border) and dotted with the weights of every window that holds it. Spatial bins
+  are block means shared by all windows; colour histograms become a per-pixel weight map summed
+  over cells. No Python loop over windows.
   With :attr:`SearchPlan.coarse_margin` (the default plan's), the windows are scored in two
   stages: every other window in both directions, then only the neighbours of those within that
   margin of the threshold; a hit's neighbours score close to it, so the hits are the full
   search's (a test checks this on the shipped frames) at about a third of the block products.
   The box refinement of the hot windows is read off the same cells, spatial bins and pixels.
 
-The fast path reproduces the features a cropped window would give, including scikit-image's zero
-gradient on the window border (see :mod:`vehicle_detection.features`), so both paths agree on
-every window's margin to rounding error; a test checks this on real frames.
+With ``"crop"``, the fast path reproduces the features a cropped window would give, including
+scikit-image's zero gradient on the window border (see :mod:`vehicle_detection.features`), so
+both paths agree on every window's margin to rounding error; with ``"frame"``, the plain path
+cuts each window's HOG from its band's gradients (``tests/reference_search.py``); tests check
+both on real frames.
 
 Coordinates: the plan is written for a frame ``reference_height`` pixels high (720, the project
 video); other frames are resized to that height first and the boxes mapped back.
@@ -393,7 +398,9 @@ def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassif
 
     Each patch is cut from the scale's resized band exactly as the search saw it (INTER_AREA
     resize, windows that overhang the frame edge filled with mirrored pixels, wide windows
-    squeezed), so ``model.decision_images(patches)`` gives the windows' margins again.
+    squeezed), so ``model.decision_images(patches)`` gives the windows' margins again with
+    ``plan.window_border="crop"``, and close to them with ``"frame"`` (where the search also
+    saw the gradient across the window's border, which a patch cannot hold).
 
     Parameters
     ----------
