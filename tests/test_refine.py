@@ -219,26 +219,3 @@ def test_search_reads_the_refinement_off_the_features_it_scored_with(default_mod
             want = features @ model.box_regressor.coef.T
             np.testing.assert_allclose(products[hot], want, rtol=1e-4, atol=1e-5)
         assert n_hot > 5
-
-
-@pytest.mark.parametrize("border", ["frame", "crop"])
-def test_window_features_are_the_searchs(default_model, test_frames, border):
-    """The refinement is fitted on the features the search gives a window: for windows of whole
-    pixels at scale 1, the patch's (``"crop"``) or those with the HOG cut from the frame's
-    gradients (``"frame"``)."""
-    from reference_search import frame_hog_plain
-
-    from vehicle_detection.features import extract_features
-    from vehicle_detection.refine import window_features
-
-    cfg = default_model.config
-    frame = np.ascontiguousarray(test_frames[0][300:600])
-    corners = [(y, x) for y in (8, 100, 200) for x in (8, 333, 900, 1200)]
-    wins = np.array([[x, y, x + 64, y + 64] for y, x in corners], np.float64)
-    got = window_features(frame, wins, cfg, border)
-    want = extract_features(np.stack([frame[y : y + 64, x : x + 64] for y, x in corners]), cfg)
-    if border == "frame":
-        hog = cfg.layout()["hog"]
-        assert np.abs(got[:, hog] - want[:, hog]).max() > 1e-3  # the border cells differ from the crop's
-        want[:, hog] = frame_hog_plain(frame, corners, cfg)
-    np.testing.assert_allclose(got, want, atol=1e-5)

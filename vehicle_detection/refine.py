@@ -24,11 +24,10 @@ import cv2
 import numpy as np
 
 from ._jit import njit
-from .features import FeatureConfig, convert_color, extract_features, hog_input, region_blocks
+from .features import FeatureConfig, extract_features
 from .geometry import as_boxes
 
-__all__ = ["BoxRegressor", "edge_offsets", "apply_offsets", "jittered_windows", "crop_windows", "working_frame", "window_features",
-           "fit_box_regressor"]
+__all__ = ["BoxRegressor", "edge_offsets", "apply_offsets", "jittered_windows", "crop_windows", "working_frame", "fit_box_regressor"]
 
 #: Largest predicted edge offset, in window sizes: a window far off its vehicle is not trusted
 #: to move further than this.
@@ -186,41 +185,6 @@ def crop_windows(frame: np.ndarray, windows: np.ndarray, side: int) -> np.ndarra
     return out
 
 
-def window_features(frame: np.ndarray, windows: np.ndarray, config: FeatureConfig, window_border: str = "crop") -> np.ndarray:
-    """Feature vectors of windows of a frame, as the search gives them with ``window_border``.
-
-    ``"crop"``: the features of each window's patch (:func:`crop_windows`). ``"frame"``: the same,
-    but for the HOG, which also sees the gradient across the window's border (one cell of the
-    frame around the window, cut and resized with it; its blocks inside the window are the
-    window's HOG, as :func:`~vehicle_detection.features.region_blocks` gives them in the search).
-
-    Parameters
-    ----------
-    frame : ndarray of uint8, shape (H, W, 3)
-    windows : array_like, shape (n, 4)
-        Square boxes in frame pixels.
-    config : FeatureConfig
-    window_border : {"crop", "frame"}
-
-    Returns
-    -------
-    ndarray of float32, shape (n, n_features)
-    """
-    windows = np.rint(np.asarray(windows, np.float64)).reshape(-1, 4)
-    if window_border == "crop":
-        return extract_features(crop_windows(frame, windows, config.window), config)
-    side, ppc, nbw = config.window, config.pixels_per_cell, config.blocks_per_window
-    grow = (windows[:, 2:] - windows[:, :2]) * ppc / side  # one cell, in frame pixels
-    big = crop_windows(frame, np.concatenate([windows[:, :2] - grow, windows[:, 2:] + grow], axis=1), side + 2 * ppc)
-    feats = extract_features(np.ascontiguousarray(big[:, ppc : ppc + side, ppc : ppc + side]), config)
-    hog = np.empty((len(big), feats[:, config.layout()["hog"]].shape[1]), np.float32)
-    for i, patch in enumerate(big):
-        blocks = region_blocks(hog_input(convert_color(patch, config.color_space), config), config)
-        hog[i] = blocks[:, 1 : 1 + nbw, 1 : 1 + nbw].ravel()  # the window's blocks, channel by channel
-    feats[:, config.layout()["hog"]] = hog
-    return feats
-
-
 def fit_box_regressor(
     samples: Iterable[tuple[np.ndarray, np.ndarray]],
     config: FeatureConfig,
@@ -229,7 +193,6 @@ def fit_box_regressor(
     alpha: float = 1.0,
     reference_height: int = 720,
     random_state: int = 0,
-    window_border: str = "crop",
 ) -> BoxRegressor:
     """Learn edge offsets from windows jittered around labelled vehicles.
 
@@ -245,9 +208,6 @@ def fit_box_regressor(
         Ridge penalty on standardised features.
     reference_height : int
         Frames are resized to this height first, as the search does.
-    window_border : {"crop", "frame"}
-        The search plan's (:attr:`~vehicle_detection.search.SearchPlan.window_border`): the
-        windows' features are those the search will give them (:func:`window_features`).
 
     Returns
     -------
@@ -265,7 +225,7 @@ def fit_box_regressor(
         work, f = working_frame(frame, reference_height)
         boxes = boxes * f
         wins = np.concatenate([jittered_windows(b, rng, per_box) for b in boxes])
-        feats.append(window_features(work, wins, config, window_border))
+        feats.append(extract_features(crop_windows(work, wins, config.window), config))
         targets.append(edge_offsets(np.rint(wins), np.repeat(boxes, per_box, axis=0)))
     if not feats:
         raise ValueError("no labelled vehicles to learn box refinement from")

@@ -194,9 +194,7 @@ def with_box_refinement(
     """
     samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
     t = time.perf_counter()
-    plan = model.detector_config.plan
-    regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=plan.reference_height,
-                                  window_border=plan.window_border)
+    regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height)
     cfg = model.detector_config
     cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote))
     metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "seconds": round(time.perf_counter() - t, 3),
