@@ -322,10 +322,6 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
     side = config.window
     if (x1 - x0) < side * s.scale * s.aspect or (y1 - y0) < side * s.scale:
         return None
-    if s.scale == int(s.scale):
-        # Whole scaled pixels down the band too (at most ``scale - 1`` rows left at the bottom,
-        # less than one scaled pixel): OpenCV's INTER_AREA then takes its block-mean path.
-        y1 -= (y1 - y0) % int(s.scale)
     region = frame[y0:y1, x0:x1]
     # Windows may overhang the left and right frame edges (mirrored pixels beyond them), so a
     # vehicle cut by the edge still has windows that frame it.
