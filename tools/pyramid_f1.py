@@ -14,8 +14,10 @@ today, and prints F1 at IoU 0.5 and 0.7 and the mean IoU of matched boxes per ca
 It is a measurement, not a search: each frame is searched whole once for every window's margin,
 and the two scales' windows are cut out and described again, one by one (slow). It replaces the
 detector module's ``search`` for its own run (nothing outside this process is touched).
-``--control`` keeps today's features through the same path: it must print the figures of
-``vehicle-detection evaluate`` exactly (the check that the path is today's).
+The detector searches windows as their crops (``window_border="crop"``, threshold 0.3: the
+search the pyramids approximate). ``--control`` keeps those features through the same path: it
+must print the figures of ``vehicle-detection evaluate --model M`` exactly, with ``M`` the
+embedded model with that plan (the check that the path is the crop search's).
 """
 
 from __future__ import annotations
@@ -106,7 +108,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--control", action="store_true", help="today's features through the same path")
     args = ap.parse_args(argv)
     detector_module.search = pyramid_search(dict(zip(APPROXIMATED, args.shift)), args.control)
-    detector = vd.Detector.load()
+    sys.path.insert(0, str(REPO / "tools"))
+    from pyramid_margins import crop_search
+
+    model = crop_search(vd.load_default_model())
+    detector = vd.Detector(model)
     for name, files in GROUPS.items():
         reports = []
         for file in files:

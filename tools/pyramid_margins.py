@@ -12,7 +12,8 @@ as sums over that image, ``8 s / o`` pixels wide at octave ``o``. Two such pyram
   (12-pixel cells), as Dollar et al.'s fast feature pyramids approximate the scales between
   octaves.
 
-For every window of the embedded model's plan on the frames (default: the shipped test images and
+For every window of the embedded model's plan, searched as crops (``window_border="crop"``,
+threshold 0.3), on the frames (default: the shipped test images and
 every 8th frame of the shipped test video), the margin the search gives it today is compared with
 the margin of the same window when its HOG comes from a shared pyramid; its spatial bins and
 colour histograms stay today's. The windows are cut from each band as the search resized it, so
@@ -85,6 +86,13 @@ def octave_patches(work: np.ndarray, band, corners: np.ndarray, scale: float, oc
 PYRAMIDS = {"one pass": lambda s: 1, "octaves": lambda s: int(2 ** np.floor(np.log2(s)))}
 
 
+def crop_search(model):
+    """``model`` searching windows as their crops (``window_border="crop"``, at the threshold that
+    search ran with, 0.3): the features the training patches have, which the pyramids approximate."""
+    plan = dataclasses.replace(model.detector_config.plan, window_border="crop", threshold=0.3)
+    return model.replace(detector_config=model.detector_config.replace(plan=plan))
+
+
 def band_margins(work: np.ndarray, model, k: int) -> dict[str, np.ndarray] | None:
     """Margins of the windows of the plan's scale ``k`` in the working frame: the search's, today's
     recomputed from crops of its band, and each shared pyramid's."""
@@ -122,7 +130,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frames", type=int, default=8, metavar="N", help="videos: every Nth frame (default 8)")
     args = ap.parse_args(argv)
     inputs = args.inputs or sorted((REPO / "test_images").glob("*.jpg")) + [REPO / "test_video.mp4"]
-    model = vd.load_default_model()
+    model = crop_search(vd.load_default_model())
     plan = model.detector_config.plan
     frames = frames_of(inputs, args.frames)
     print(f"{len(frames)} frames; plan threshold {plan.threshold:g}")

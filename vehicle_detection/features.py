@@ -23,10 +23,12 @@ precision) at a small fraction of the cost:
 * blocks of ``cpb x cpb`` cells are normalised with L2-Hys (clip at 0.2).
 
 For the sliding-window search (:mod:`vehicle_detection.search`) the cells of a whole search
-region are computed once; :func:`region_hog` also records, per cell, how the votes of its border
-rows and columns change when that border is a window's border (where a cropped patch would have
-zero gradient). With those corrections the search reproduces, window by window, the exact
-features a cropped patch would give: the fast path and the plain per-window path agree.
+region are computed once. :func:`region_blocks` normalises every block of the region once: a
+window's HOG is its blocks, and it sees the region's gradient across its own border (the
+search's default, ``SearchPlan.window_border="frame"``). :func:`region_hog` also records, per
+cell, how the votes of its border rows and columns change when that border is a window's border
+(where a cropped patch has zero gradient); with those corrections the search reproduces, window
+by window, the exact features a cropped patch gives (``window_border="crop"``).
 
 ``skimage.feature.hog(visualize=True)`` is used only to draw HOG pictures (:func:`hog_image`).
 """
