@@ -620,6 +620,17 @@ def _score_colour(bin_means, spatial_w, f, cell_scores, cpw, ppc, rows, cols, wi
             out[wr, wc] += s
 
 
+@njit(nogil=True, fastmath=True, inline="always")
+def _add_products(block, hog_w, ch, a, b, out):
+    """``out[k] += block . hog_w[k, ch, a, b]`` for each of the K maps (one block of one window)."""
+    for k in range(hog_w.shape[0]):
+        w = hog_w[k, ch, a, b]
+        t = 0.0
+        for j in range(w.shape[0]):
+            t += block[j] * w[j]
+        out[k] += t
+
+
 @njit(nogil=True, fastmath=True)
 def _hog_products_crop(variants, cpb, hog_w, rows, cols, out):
     """The HOG part of :func:`_colour_products`'s maps, for windows seen as their crops.
@@ -628,7 +639,7 @@ def _hog_products_crop(variants, cpb, hog_w, rows, cols, out):
     (:func:`~vehicle_detection.features.region_hog`); ``out[i, k]`` (n, K) gets their dot
     products with ``hog_w[k]`` (K, C, nbw, nbw, bs).
     """
-    n_maps, n_ch, nbw, bs = hog_w.shape[0], hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
+    n_ch, nbw, bs = hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
     block = np.empty(bs, np.float64)
     for i in range(rows.shape[0]):
         r0, c0 = rows[i], cols[i]
@@ -637,31 +648,20 @@ def _hog_products_crop(variants, cpb, hog_w, rows, cols, out):
             for a in range(nbw):
                 for b in range(nbw):
                     _gather_block(var, r0 + a, c0 + b, cpb, _border_class(a, nbw), _border_class(b, nbw), block)
-                    for k in range(n_maps):
-                        w = hog_w[k, ch, a, b]
-                        t = 0.0
-                        for j in range(bs):
-                            t += block[j] * w[j]
-                        out[i, k] += t
+                    _add_products(block, hog_w, ch, a, b, out[i])
 
 
 @njit(nogil=True, fastmath=True)
 def _hog_products_frame(blocks, hog_w, rows, cols, out):
     """:func:`_hog_products_crop` for windows that see the frame across their border: the blocks
     are read off the band's block map (C, n_br, n_bc, bs) as they are."""
-    n_maps, n_ch, nbw, bs = hog_w.shape[0], hog_w.shape[1], hog_w.shape[2], hog_w.shape[4]
+    n_ch, nbw = hog_w.shape[1], hog_w.shape[2]
     for i in range(rows.shape[0]):
         r0, c0 = rows[i], cols[i]
         for ch in range(n_ch):
             for a in range(nbw):
                 for b in range(nbw):
-                    block = blocks[ch, r0 + a, c0 + b]
-                    for k in range(n_maps):
-                        w = hog_w[k, ch, a, b]
-                        t = 0.0
-                        for j in range(bs):
-                            t += block[j] * w[j]
-                        out[i, k] += t
+                    _add_products(blocks[ch, r0 + a, c0 + b], hog_w, ch, a, b, out[i])
 
 
 @njit(nogil=True, fastmath=True)
