@@ -3,8 +3,8 @@
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
 kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
 process that compiles the HOG block kernels (normalising the blocks and scoring the windows)
-into the cache while this process compiles the others, the HOG cells, the two colour kernels
-and the box refinement's (a real band's scoring without the blocks, on a blank frame, so with
+and the box refinement's into the cache while this process compiles the others, the HOG cells
+and the two colour kernels (a real band's scoring without the blocks, on a blank frame, so with
 exactly the argument types of a real search); this process then loads the helper's kernels
 from the cache. The kernels are those of the default search (``window_border="frame"``); a
 plan with ``"crop"`` compiles its own on first use.
@@ -48,8 +48,8 @@ _MAIN_KERNELS = (
     ("search", "_score_colour", "search._score_colour-"),
 )
 
-# Compiled here too, for models that refine their boxes (not replaced in the helper: a blank
-# frame has no hot window to refine).
+# Compiled in the helper too, for models that refine their boxes (a blank band scored with every
+# window counted as hot); about as long to compile as the main half's three.
 _REFINE_KERNELS = (
     ("search", "_hog_products_frame", "search._hog_products_frame-"),
     ("search", "_colour_products", "search._colour_products-"),
@@ -109,10 +109,10 @@ def _blank_band(model):
 
 
 def _compile_main(model) -> None:
-    """This process's half: every kernel but the HOG blocks', by the real code path, nothing replaced."""
+    """This process's half: the cells and colour kernels, by the real code path, nothing replaced."""
     band = _blank_band(model)
-    if band is not None:  # every window of the blank band counts as hot: the refinement's kernel too
-        _score_band(band, model, reuse=False, hog_blocks=False, refine_above=-np.inf)
+    if band is not None:
+        _score_band(band, model, reuse=False, hog_blocks=False, frame=model.detector_config.plan.window_border == "frame")
 
 
 def compile_search_kernels(model) -> None:
@@ -150,6 +150,11 @@ def compile_search_kernels(model) -> None:
 
 
 def _helper() -> None:
-    """The helper process's half: a real search of a blank frame with the main half's kernels as no-ops."""
+    """The helper process's half: a real search of a blank frame with the main half's kernels as
+    no-ops, and its first band scored with every window counted as hot (the refinement's kernels)."""
+    model = load_default_model()
     with _without(_MAIN_KERNELS):  # this process only
-        search(np.zeros((720, 320, 3), np.uint8), load_default_model())
+        search(np.zeros((720, 320, 3), np.uint8), model)
+        band = _blank_band(model)
+        if band is not None and model.box_regressor is not None:
+            _score_band(band, model, reuse=False, refine_above=-np.inf, frame=model.detector_config.plan.window_border == "frame")
