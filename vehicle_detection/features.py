@@ -822,36 +822,54 @@ def region_hog(image: np.ndarray, config: FeatureConfig, out: np.ndarray | None 
 
 
 @njit(nogil=True)
-def _region_cells(image, channels, lut, ppc, nb, cells):
-    """Cell histograms of chosen channels of a region, with the region's own gradient everywhere.
+def _region_cells(planes, lut, ppc, nb, cells):
+    """Cell histograms of a region's channels, with the region's own gradient everywhere.
 
-    image (H, W, C) uint8; cells (len(channels), H // ppc, W // ppc, nb) float32, overwritten.
-    Central differences, zero on the region's border only (scikit-image's convention for the
-    region as one image). A row of cells is summed in float32 accumulators that stay in the
-    fastest cache; bin ``nb`` collects the votes counted in no bin, without a branch.
+    planes (C, H, W) uint8, one channel after the other (contiguous rows); cells
+    (C, H // ppc, W // ppc, nb) float32, overwritten. Central differences, zero on the region's
+    border only (scikit-image's convention for the region as one image). Row by row: the
+    gradients, magnitudes and table indices of the whole row first (loops the compiler
+    vectorises), then the votes into a row of cells, summed in float32 accumulators that stay in
+    the fastest cache; bin ``nb`` collects the votes counted in no bin, without a branch.
+    ``lut`` is :func:`_orientation_lut` flattened: the bin of ``(gy, gx)`` at
+    ``(gy + 255) * 511 + gx + 255``.
     """
-    h, w = image.shape[0], image.shape[1]
-    n_ch, n_cr, n_cc = cells.shape[0], cells.shape[1], cells.shape[2]
-    acc = np.empty((n_ch, n_cc, nb + 1), np.float32)
-    for cy in range(n_cr):
-        acc[:] = 0.0
-        for y in range(cy * ppc, (cy + 1) * ppc):
-            inner_y = 0 < y < h - 1
-            up, down = (y - 1, y + 1) if inner_y else (y, y)
-            for cx in range(n_cc):
-                for rx in range(ppc):
-                    x = cx * ppc + rx
-                    inner_x = 0 < x < w - 1
-                    left, right = (x - 1, x + 1) if inner_x else (x, x)
-                    for k in range(n_ch):
-                        ch = channels[k]
-                        gx = np.int32(image[y, right, ch]) - np.int32(image[y, left, ch])
-                        gy = np.int32(image[down, x, ch]) - np.int32(image[up, x, ch])
-                        acc[k, cx, lut[gy + 255, gx + 255]] += np.float32(math.sqrt(np.float32(gx * gx + gy * gy)))
-        for k in range(n_ch):
+    n_ch, h, w = planes.shape
+    n_cr, n_cc = cells.shape[1], cells.shape[2]
+    n = n_cc * ppc  # the columns the cells cover (n <= w)
+    acc = np.empty((n_cc, nb + 1), np.float32)
+    gx, gy = np.zeros(n, np.int32), np.zeros(n, np.int32)
+    mag, index = np.empty(n, np.float32), np.empty(n, np.int32)
+    for k in range(n_ch):
+        image = planes[k]
+        for cy in range(n_cr):
+            acc[:] = 0.0
+            for y in range(cy * ppc, (cy + 1) * ppc):
+                row = image[y]
+                if 0 < y < h - 1:
+                    up, down = image[y - 1], image[y + 1]
+                    for x in range(n):
+                        gy[x] = np.int32(down[x]) - np.int32(up[x])
+                else:
+                    gy[:] = 0
+                for x in range(1, min(n, w - 1)):
+                    gx[x] = np.int32(row[x + 1]) - np.int32(row[x - 1])
+                gx[0] = 0
+                if n == w:
+                    gx[w - 1] = 0
+                for x in range(n):
+                    mag[x] = math.sqrt(np.float32(gx[x] * gx[x] + gy[x] * gy[x]))
+                    index[x] = (gy[x] + 255) * 511 + gx[x] + 255
+                for x in range(n):
+                    acc[x // ppc, lut[index[x]]] += mag[x]
             for cx in range(n_cc):
                 for o in range(nb):
-                    cells[k, cy, cx, o] = acc[k, cx, o]
+                    cells[k, cy, cx, o] = acc[cx, o]
+
+
+def _planes(image: np.ndarray, channels) -> np.ndarray:
+    """The chosen channels of an (H, W, C) image as contiguous (len(channels), H, W) planes."""
+    return np.ascontiguousarray(np.moveaxis(image[:, :, list(channels)], -1, 0))
 
 
 @njit(nogil=True, fastmath=True)
@@ -913,14 +931,21 @@ def region_blocks(image: np.ndarray, config: FeatureConfig, cells: np.ndarray | 
         Block ``[k, r, c]`` of channel ``config.hog_channels[k]`` has its top-left cell at
         cell row ``r``, column ``c``.
     """
-    img = np.ascontiguousarray(image)
-    channels = np.array(config.hog_channels, dtype=np.int64)
+    channels = config.hog_channels
     ppc, nb, cpb = config.pixels_per_cell, config.orientations, config.cells_per_block
-    n_cr, n_cc = img.shape[0] // ppc, img.shape[1] // ppc
+    n_cr, n_cc = image.shape[0] // ppc, image.shape[1] // ppc
     if cells is None:
         cells = np.empty((len(channels), n_cr, n_cc, nb), np.float32)
     if out is None:
         out = np.empty((len(channels), max(n_cr - cpb + 1, 0), max(n_cc - cpb + 1, 0), cpb * cpb * nb), np.float32)
-    _region_cells(img, channels, _orientation_lut(nb, config.signed), ppc, nb, cells)
+    _region_cells(_planes(image, channels), _flat_lut(nb, config.signed), ppc, nb, cells)
     _block_map(cells, cpb, out)
     return out
+
+
+@lru_cache(maxsize=16)
+def _flat_lut(orientations: int, signed: bool) -> np.ndarray:
+    """:func:`_orientation_lut` as one row (for :func:`_region_cells`)."""
+    lut = np.ascontiguousarray(_orientation_lut(orientations, signed).ravel())
+    lut.setflags(write=False)
+    return lut

@@ -49,8 +49,9 @@ from .features import (
     _block_map,
     _cell_squares,
     _clipped_block,
+    _flat_lut,
     _gather_block,
-    _orientation_lut,
+    _planes,
     _region_cells,
     convert_color,
     hog_input,
@@ -808,8 +809,8 @@ def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bo
     variants = squares = blocks = None
     if frame:
         cells = buffer("cells", (n_hc, n_cr, n_cc, cfg.orientations), np.float32)
-        _region_cells(hog_input(conv, cfg), np.array(cfg.hog_channels, np.int64),
-                      _orientation_lut(cfg.orientations, cfg.signed), ppc, cfg.orientations, cells)
+        _region_cells(_planes(hog_input(conv, cfg), cfg.hog_channels), _flat_lut(cfg.orientations, cfg.signed), ppc,
+                      cfg.orientations, cells)
         blocks = buffer("blocks", (n_hc, n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size), np.float32)
         if hog_blocks:
             _block_map(cells, cpb, blocks)
