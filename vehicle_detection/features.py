@@ -867,9 +867,14 @@ def _region_cells(planes, lut, ppc, nb, cells):
                     cells[k, cy, cx, o] = acc[cx, o]
 
 
-def _planes(image: np.ndarray, channels) -> np.ndarray:
-    """The chosen channels of an (H, W, C) image as contiguous (len(channels), H, W) planes."""
-    return np.ascontiguousarray(np.moveaxis(image[:, :, list(channels)], -1, 0))
+def _planes(image: np.ndarray, channels, out: np.ndarray | None = None) -> np.ndarray:
+    """The chosen channels of an (H, W, C) image as contiguous (len(channels), H, W) planes
+    (written into ``out`` when given: the search reuses it across frames)."""
+    if out is None:
+        out = np.empty((len(channels),) + image.shape[:2], image.dtype)
+    for k, ch in enumerate(channels):
+        out[k] = image[:, :, ch]
+    return out
 
 
 @njit(nogil=True, fastmath=True)

@@ -809,8 +809,8 @@ def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bo
     variants = squares = blocks = None
     if frame:
         cells = buffer("cells", (n_hc, n_cr, n_cc, cfg.orientations), np.float32)
-        _region_cells(_planes(hog_input(conv, cfg), cfg.hog_channels), _flat_lut(cfg.orientations, cfg.signed), ppc,
-                      cfg.orientations, cells)
+        planes = _planes(hog_input(conv, cfg), cfg.hog_channels, buffer("planes", (n_hc,) + conv.shape[:2], np.uint8))
+        _region_cells(planes, _flat_lut(cfg.orientations, cfg.signed), ppc, cfg.orientations, cells)
         blocks = buffer("blocks", (n_hc, n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size), np.float32)
         if hog_blocks:
             _block_map(cells, cpb, blocks)
