@@ -135,10 +135,9 @@ class SearchPlan:
     ----------
     scales : tuple of SearchScale
     threshold : float
-        Minimum SVM margin of a window reported as a detection. The default belongs to the
-        default ``window_border``: a window seen across its border scores more than its crop
-        (0.13 on average near the threshold, on the shipped frames), so 0.43 reports the
-        windows that 0.3 reported with ``"crop"``.
+        Minimum SVM margin of a window reported as a detection. The default goes with the
+        default ``window_border``: windows seen across their border score a little higher than
+        their crops (plans that search crops used 0.3).
     reference_height : int
         Frame height the bands are written for; other frames are resized to it.
     overhang : float
