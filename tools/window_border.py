@@ -9,12 +9,16 @@ patches have them). Prints the correlation of the two margins and their mean and
 over all windows and over the windows near the threshold (a crop margin above -1). Then times
 the search alone (one thread, frames in memory) with each border, alternately, ``--rounds``
 times over 40 frames of clip A (``../shared/data``, else the test video), and prints
-milliseconds a frame (min to max) and the ratio of each round.
+milliseconds a frame (min to max) and the ratio of each round. With ``--steps``, also where the
+``"frame"`` search's time goes: each step timed around its call (resizing the bands, colour
+conversion, gamma, cells, blocks, colour sums, the two stages' products, the refinement), in
+milliseconds a frame of each round.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import os
 import time
@@ -44,6 +48,7 @@ def main(argv: list[str] | None = None) -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=3, help="alternated timing rounds (default 3)")
+    ap.add_argument("--steps", action="store_true", help="also time each step of the 'frame' search")
     args = ap.parse_args(argv)
 
     model = load_default_model()
@@ -82,6 +87,46 @@ def main(argv: list[str] | None = None) -> None:
               f"({args.rounds} rounds)")
     ratios = [f / c for f, c in zip(ms["frame"], ms["crop"])]
     print(f"ratio 'frame' / 'crop', round by round: {', '.join(f'{r:.2f}' for r in ratios)}")
+    if args.steps:
+        steps(model, plans["frame"], frames, args.rounds)
+
+
+STEPS = {"_band": "resize", "convert_color": "colour conversion", "hog_input": "gamma", "_region_cells": "cells",
+         "_block_map": "blocks", "_colour_sums": "colour sums", "_two_stage_margins": "two stages' products",
+         "_refine_products": "refinement"}
+
+
+def steps(model, plan, frames, rounds: int) -> None:
+    """Milliseconds a frame of each step of the search, timed around its call in the search module
+    (replaced for this process only)."""
+    from vehicle_detection import search as S
+
+    spent = collections.defaultdict(float)
+
+    def timed(name, fn):
+        def call(*a, **k):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                spent[name] += time.perf_counter() - t
+        return call
+
+    saved = {name: getattr(S, name) for name in STEPS}
+    for name, fn in saved.items():
+        setattr(S, name, timed(name, fn))
+    try:
+        for r in range(rounds):
+            spent.clear()
+            t = time.perf_counter()
+            for frame in frames:
+                S.search(frame, model, plan)
+            whole = 1000 * (time.perf_counter() - t) / len(frames)
+            parts = ", ".join(f"{label} {1000 * spent[name] / len(frames):.2f}" for name, label in STEPS.items())
+            print(f"round {r + 1}: {whole:.1f} ms a frame: {parts}")
+    finally:
+        for name, fn in saved.items():
+            setattr(S, name, fn)
 
 
 if __name__ == "__main__":
