@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--shift", nargs=2, type=float, default=(0.40, 0.31), metavar=("S15", "S3"),
                     help="added to the approximated margins of scales 1.5 and 3 (default: the opposite of "
                     "tools/pyramid_margins.py's mean changes, 0.40 0.31)")
-    ap.add_argument("--control", action="store_true", help="today's features through the same path")
+    ap.add_argument("--control", action="store_true", help="the crop search's features through the same path")
     args = ap.parse_args(argv)
     detector_module.search = pyramid_search(dict(zip(APPROXIMATED, args.shift)), args.control)
     sys.path.insert(0, str(REPO / "tools"))
@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> None:
             reports.append(evaluation_report(found, labels, fps=fps))
         r = pool_reports(reports)
         a, b = r["at_iou_0.5"], r["at_iou_0.7"]
-        what = "control (today's features)" if args.control else f"octaves, shift {args.shift[0]:g} / {args.shift[1]:g}"
+        what = "control (the crop search's features)" if args.control else f"octaves, shift {args.shift[0]:g} / {args.shift[1]:g}"
         print(f"{what}: {name}: F1 {a['f1']:.3f} / {b['f1']:.3f}, mean IoU {a['mean_iou']:.3f} "
               f"(tp {a['tp']}, fp {a['fp']}, fn {a['fn']})", flush=True)
 
