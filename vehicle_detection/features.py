@@ -879,36 +879,24 @@ def _planes(image: np.ndarray, channels, out: np.ndarray | None = None) -> np.nd
 
 @njit(nogil=True, fastmath=True)
 def _block_map(cells, cpb, blocks):
-    """Every block of a region, L2-Hys normalised once (as :func:`_gather_block` does one block).
+    """Every block of a region, L2-Hys normalised once (:func:`_l2hys`, as a patch's blocks are).
 
     cells (C, n_cr, n_cc, nb) float32; blocks (C, n_cr - cpb + 1, n_cc - cpb + 1, cpb * cpb * nb)
     float32, overwritten, in scikit-image's order within a block (cell row, cell column, bin).
     """
     n_ch, nb = cells.shape[0], cells.shape[3]
-    n_br, n_bc, bs = blocks.shape[1], blocks.shape[2], blocks.shape[3]
-    clip = np.float32(0.2)
+    n_br, n_bc = blocks.shape[1], blocks.shape[2]
     for k in range(n_ch):
         for r in range(n_br):
             for c in range(n_bc):
                 out = blocks[k, r, c]
-                s1 = 0.0
                 i = 0
                 for a in range(cpb):
                     for b in range(cpb):
                         for o in range(nb):
-                            v = cells[k, r + a, c + b, o]
-                            out[i] = v
-                            s1 += v * v
+                            out[i] = cells[k, r + a, c + b, o]
                             i += 1
-                inv1 = np.float32(1.0 / math.sqrt(s1 + 1e-10))
-                s2 = 0.0
-                for j in range(bs):
-                    v = min(out[j] * inv1, clip)
-                    out[j] = v
-                    s2 += v * v
-                inv2 = np.float32(1.0 / math.sqrt(s2 + 1e-10))
-                for j in range(bs):
-                    out[j] *= inv2
+                _l2hys(out)
 
 
 def region_blocks(image: np.ndarray, config: FeatureConfig, cells: np.ndarray | None = None,
