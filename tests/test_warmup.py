@@ -24,10 +24,57 @@ def test_without_restores_the_kernels_and_zeroes_outputs():
 
 
 def test_every_kernel_is_compiled_by_one_side():
-    names = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS}
-    assert names == {"_region_cells", "_colour_sums", "_score_colour", "_score_blocks", "_block_map"}
-    for mod, fn, prefix in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS:
+    kernels = (_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS
+               + _warmup._HELPER_REFINE_KERNELS)
+    names = [fn for _, fn, _ in kernels]
+    assert sorted(names) == sorted({"_region_cells", "_colour_sums", "_score_colour", "_score_blocks", "_block_map",
+                                    "_hog_products_frame", "_colour_products"})
+    for mod, fn, prefix in kernels:
         assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
+
+
+def _compiled_in_a_fresh_cache(tmp_path, code: str) -> tuple[set, set]:
+    """Run ``code`` in a new process with an empty numba cache: the kernels it compiled itself
+    (numba's compile events) and the cache index files it left."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "from numba.core import event\n"
+        "class Seen(event.Listener):\n"
+        "    names = set()\n"
+        "    def on_start(self, ev): pass\n"
+        "    def on_end(self, ev):\n"
+        "        f = ev.data['dispatcher'].py_func\n"
+        "        if f.__module__.startswith('vehicle_detection'): self.names.add(f.__name__)\n"
+        "seen = Seen()\n"
+        "event.register('numba:compile', seen)\n"
+        + code +
+        "print(' '.join(sorted(seen.names)))\n"
+    )
+    cache = tmp_path / "cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    files = {p.name.split("-")[0] for p in cache.rglob("*.nbi")}
+    return set(proc.stdout.split()), files
+
+
+def test_the_helper_fills_a_fresh_cache_with_its_kernels_only(tmp_path):
+    """Its search of a blank frame with the main half's kernels as no-ops must run through (each
+    no-op zeroes its kernel's output, the last argument) and compile exactly its share."""
+    compiled, files = _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection._warmup import _helper\n_helper()\n")
+    helper = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._HELPER_REFINE_KERNELS}
+    assert compiled == helper | {"_l2hys"}  # _block_map's normalisation, a kernel of its own
+    assert {f.split(".")[1] for f in files} == helper | {"_l2hys"}
+
+
+def test_the_main_half_compiles_the_other_kernels(tmp_path):
+    compiled, _ = _compiled_in_a_fresh_cache(
+        tmp_path, "from vehicle_detection import _warmup, load_default_model\n_warmup._compile_main(load_default_model())\n")
+    assert compiled == {fn for _, fn, _ in _warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS}
 
 
 def test_searching_after_the_warm_up_gives_the_same_windows(default_model, test_frames):

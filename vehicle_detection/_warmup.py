@@ -1,13 +1,16 @@
 """Compile the search kernels on both cores when the numba cache is cold (a fresh install).
 
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
-kernels on a laptop core. On a cold cache, :func:`compile_search_kernels` starts a helper
-process that compiles the HOG block kernels (normalising the blocks and scoring the windows)
-and the box refinement's into the cache while this process compiles the others, the HOG cells
-and the two colour kernels (a real band's scoring without the blocks, on a blank frame, so with
-exactly the argument types of a real search); this process then loads the helper's kernels
-from the cache. The kernels are those of the default search (``window_border="frame"``); a
-plan with ``"crop"`` compiles its own on first use.
+kernels on a laptop core, after about a second of numba's own start. On a cold cache,
+:func:`compile_search_kernels` starts a helper process that compiles the HOG block kernel
+(normalising the blocks) and the box refinement's colour kernel into the cache while this
+process compiles the others: the HOG cells, the two colour kernels, the windows' HOG scores and
+the refinement's HOG part (a real band's scoring with its blocks left zero, on a blank frame,
+so with exactly the argument types of a real search); this process then loads the helper's kernels from the cache. The helper
+also pays its imports and numba's start, so it takes the smaller share of the kernels. The
+kernels are those of the default search (``window_border="frame"``); a plan with ``"crop"``
+compiles its own on first use. No kernel allocates an array (work arrays are passed in):
+numba then has no allocation code of its own to compile first, which is a third of a second.
 The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
 (in the helper only: nothing is replaced here, so a search running in another thread meanwhile
 is unaffected). On a warm cache nothing happens here (the kernels load on first use), nor
@@ -31,7 +34,7 @@ import numpy as np
 
 from . import _jit
 from .classifier import load_default_model
-from .search import _band, _score_band, _working_frame, search
+from .search import _band, _band_features, _refine_hog, _score_band, _working_frame, search
 
 __all__ = ["compile_search_kernels"]
 
@@ -39,19 +42,21 @@ _DONE = threading.Event()
 _LOCK = threading.Lock()
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
-    ("search", "_score_blocks", "search._score_blocks-"),
     ("search", "_block_map", "features._block_map-"),  # defined in features, called through search
 )
 _MAIN_KERNELS = (
     ("search", "_region_cells", "features._region_cells-"),
     ("search", "_colour_sums", "search._colour_sums-"),
     ("search", "_score_colour", "search._score_colour-"),
+    ("search", "_score_blocks", "search._score_blocks-"),
 )
 
-# Compiled in the helper too, for models that refine their boxes (a blank band scored with every
-# window counted as hot); about as long to compile as the main half's three.
-_REFINE_KERNELS = (
+# For models that refine their boxes: the HOG part here, the colour part in the helper (a blank
+# band scored with every window counted as hot).
+_MAIN_REFINE_KERNELS = (
     ("search", "_hog_products_frame", "search._hog_products_frame-"),
+)
+_HELPER_REFINE_KERNELS = (
     ("search", "_colour_products", "search._colour_products-"),
 )
 
@@ -109,10 +114,17 @@ def _blank_band(model):
 
 
 def _compile_main(model) -> None:
-    """This process's half: the cells and colour kernels, by the real code path, nothing replaced."""
+    """This process's half: the cells, colour and window-score kernels and the refinement's HOG
+    part, by the real code path, nothing replaced."""
     band = _blank_band(model)
-    if band is not None:
-        _score_band(band, model, reuse=False, hog_blocks=False, frame=model.detector_config.plan.window_border == "frame")
+    if band is None:
+        return
+    frame = model.detector_config.plan.window_border == "frame"
+    _score_band(band, model, reuse=False, hog_blocks=False, frame=frame)
+    if frame and model.box_regressor is not None:
+        feats = _band_features(band, model, lambda name, shape, dtype=np.float64: np.empty(shape, dtype), False, frame)
+        index = np.arange(1)
+        _refine_hog(feats, model, band.rows[index // len(band.cols)], band.cols[index % len(band.cols)], np.zeros((1, 4)))
 
 
 def compile_search_kernels(model) -> None:
@@ -124,7 +136,7 @@ def compile_search_kernels(model) -> None:
         if _DONE.is_set():
             return
         _DONE.set()
-        refine = _REFINE_KERNELS if model.box_regressor is not None else ()
+        refine = _MAIN_REFINE_KERNELS + _HELPER_REFINE_KERNELS if model.box_regressor is not None else ()
         if _cores() < 2 or _cached(_HELPER_KERNELS + _MAIN_KERNELS + refine):
             return
         env = dict(os.environ)
@@ -153,7 +165,7 @@ def _helper() -> None:
     """The helper process's half: a real search of a blank frame with the main half's kernels as
     no-ops, and its first band scored with every window counted as hot (the refinement's kernels)."""
     model = load_default_model()
-    with _without(_MAIN_KERNELS):  # this process only
+    with _without(_MAIN_KERNELS + _MAIN_REFINE_KERNELS):  # this process only
         search(np.zeros((720, 320, 3), np.uint8), model)
         band = _blank_band(model)
         if band is not None and model.box_regressor is not None:

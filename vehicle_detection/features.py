@@ -822,7 +822,7 @@ def region_hog(image: np.ndarray, config: FeatureConfig, out: np.ndarray | None 
 
 
 @njit(nogil=True)
-def _region_cells(planes, lut, ppc, nb, cells):
+def _region_cells(planes, lut, ppc, nb, acc, rows, mag, cells):
     """Cell histograms of a region's channels, with the region's own gradient everywhere.
 
     planes (C, H, W) uint8, one channel after the other (contiguous rows); cells
@@ -832,14 +832,15 @@ def _region_cells(planes, lut, ppc, nb, cells):
     vectorises), then the votes into a row of cells, summed in float32 accumulators that stay in
     the fastest cache; bin ``nb`` collects the votes counted in no bin, without a branch.
     ``lut`` is :func:`_orientation_lut` flattened: the bin of ``(gy, gx)`` at
-    ``(gy + 255) * 511 + gx + 255``.
+    ``(gy + 255) * 511 + gx + 255``. Work arrays (:func:`_cell_work`, contents irrelevant):
+    acc (W // ppc, nb + 1) float32, rows (3, W // ppc * ppc) int32, mag (W // ppc * ppc,)
+    float32, passed in rather than allocated here: a kernel without allocations compiles
+    faster (a first run's start). The output comes last, as in every kernel here.
     """
     n_ch, h, w = planes.shape
     n_cr, n_cc = cells.shape[1], cells.shape[2]
     n = n_cc * ppc  # the columns the cells cover (n <= w)
-    acc = np.empty((n_cc, nb + 1), np.float32)
-    gx, gy = np.zeros(n, np.int32), np.zeros(n, np.int32)
-    mag, index = np.empty(n, np.float32), np.empty(n, np.int32)
+    gx, gy, index = rows[0], rows[1], rows[2]
     for k in range(n_ch):
         image = planes[k]
         for cy in range(n_cr):
@@ -865,6 +866,12 @@ def _region_cells(planes, lut, ppc, nb, cells):
             for cx in range(n_cc):
                 for o in range(nb):
                     cells[k, cy, cx, o] = acc[cx, o]
+
+
+def _cell_work(n_cc: int, ppc: int, nb: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The work arrays of :func:`_region_cells` for ``n_cc`` cells a row (a few kilobytes)."""
+    n = n_cc * ppc
+    return np.empty((n_cc, nb + 1), np.float32), np.empty((3, n), np.int32), np.empty(n, np.float32)
 
 
 def _planes(image: np.ndarray, channels, out: np.ndarray | None = None) -> np.ndarray:
@@ -931,7 +938,7 @@ def region_blocks(image: np.ndarray, config: FeatureConfig, cells: np.ndarray | 
         cells = np.empty((len(channels), n_cr, n_cc, nb), np.float32)
     if out is None:
         out = np.empty((len(channels), max(n_cr - cpb + 1, 0), max(n_cc - cpb + 1, 0), cpb * cpb * nb), np.float32)
-    _region_cells(_planes(image, channels), _flat_lut(nb, config.signed), ppc, nb, cells)
+    _region_cells(_planes(image, channels), _flat_lut(nb, config.signed), ppc, nb, *_cell_work(n_cc, ppc, nb), cells)
     _block_map(cells, cpb, out)
     return out
 

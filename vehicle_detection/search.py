@@ -48,6 +48,7 @@ from .features import (
     FeatureConfig,
     _block_map,
     _cell_squares,
+    _cell_work,
     _clipped_block,
     _flat_lut,
     _gather_block,
@@ -561,18 +562,18 @@ def _score_blocks(blocks, weights, rows, cols, out):
 
 
 @njit(nogil=True)
-def _colour_sums(conv, f, ppc, hist_lut, bin_means, cell_scores):
+def _colour_sums(conv, f, ppc, hist_lut, sums, bin_means, cell_scores):
     """One pass over the region for the colour features.
 
     bin_means (h // f, w // f, 3) float32: mean of each channel over each ``f x f`` block (the
     spatial bins of any window aligned to the ``f`` grid, as :func:`bin_spatial` computes
     them); cell_scores (h // ppc, w // ppc): sum over each cell's pixels of
     ``hist_lut[ch, value]``, the histogram weight of the pixel's bin (a window's histogram
-    score is the sum over its cells).
+    score is the sum over its cells). sums (w // f * 3,) int64: a work array (passed in: a
+    kernel without allocations compiles faster). Outputs last, as in every kernel here.
     """
     nby, nbx = bin_means.shape[0], bin_means.shape[1]
     inv = 1.0 / (f * f)
-    sums = np.empty(nbx * 3, np.int64)
     for by in range(nby):
         sums[:] = 0
         for y in range(by * f, (by + 1) * f):
@@ -594,18 +595,20 @@ def _colour_sums(conv, f, ppc, hist_lut, bin_means, cell_scores):
 
 
 @njit(nogil=True, fastmath=True)
-def _score_colour(bin_means, spatial_w, f, cell_scores, cpw, ppc, rows, cols, with_spatial, with_hist, out):
-    """Add the spatial-bin and histogram parts of every window's margin to ``out``."""
-    size = spatial_w.shape[0]
-    run = size * 3  # one row of a window's spatial bins, contiguous in both arrays
-    means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
-    weights = spatial_w.reshape(size, run)
+def _score_colour(means, weights, f, cell_scores, cpw, ppc, rows, cols, with_hist, out):
+    """Add the spatial-bin and histogram parts of every window's margin to ``out``.
+
+    means (h // f, w // f * 3) float32: the bin means, a row of bins' channels in a row;
+    weights (size, size * 3): the spatial weights the same way (no rows: no spatial part). A
+    window's row of spatial bins is contiguous in both.
+    """
+    size, run = weights.shape[0], weights.shape[1]
     for wr in range(rows.shape[0]):
         r0 = rows[wr]
         for wc in range(cols.shape[0]):
             c0 = cols[wc]
             s = 0.0
-            if with_spatial:
+            if size:
                 by0 = r0 * ppc // f
                 x0 = (c0 * ppc // f) * 3
                 for by in range(size):
@@ -665,11 +668,11 @@ def _hog_products_frame(blocks, hog_w, rows, cols, out):
 
 
 @njit(nogil=True, fastmath=True)
-def _colour_products(bin_means, spatial_w, f, conv, hist_lut, ppc, cpw, rows, cols, cell_maps, done, out):
+def _colour_products(means, spatial_w, f, conv, hist_lut, ppc, cpw, rows, cols, cell_maps, done, out):
     """Linear maps of the colour part of chosen windows' feature vectors, read off the band's features.
 
-    The window whose top-left cell is ``(rows[i], cols[i])`` has the spatial bins ``bin_means``
-    and the histograms counted on ``conv``, as
+    The window whose top-left cell is ``(rows[i], cols[i])`` has the spatial bins ``means``
+    (the bin means as :func:`_score_colour` reads them) and the histograms counted on ``conv``, as
     :func:`~vehicle_detection.features.extract_features` gives them for its patch. ``out[i, k]``
     (n, K) gets their dot products with ``spatial_w[k]`` (K, size, size * 3) and the histogram
     weights ``hist_lut[k]`` (K, 3, 256: the weight of each 8-bit value's bin). The histogram
@@ -679,7 +682,6 @@ def _colour_products(bin_means, spatial_w, f, conv, hist_lut, ppc, cpw, rows, co
     n_maps = out.shape[1]
     size = spatial_w.shape[1]
     run = size * 3
-    means = bin_means.reshape(bin_means.shape[0], bin_means.shape[1] * 3)
     with_hist = hist_lut.shape[0] == n_maps
     for i in range(rows.shape[0]):
         r0, c0 = rows[i], cols[i]
@@ -746,7 +748,8 @@ class _KernelWeights:
         cfg = model.config
         w, lay = model.weights, cfg.layout()
         self.bias = model.bias
-        self.spatial = w[lay["spatial"]].reshape(cfg.spatial_size, cfg.spatial_size, 3) if cfg.spatial_size else np.zeros((0, 0, 3))
+        size = cfg.spatial_size
+        self.spatial = w[lay["spatial"]].reshape(size, size * 3) if size else np.zeros((0, 0))
         # Weight of each 8-bit value's histogram bin, per channel: (3, 256).
         self.hist_lut = _hist_lut(w[lay["hist"]].reshape(3, cfg.hist_bins) if cfg.hist_bins else np.zeros((3, 1)))
         nbw = cfg.blocks_per_window
@@ -797,7 +800,6 @@ class _BandFeatures:
     bin_means: np.ndarray  # (h // f, w // f, 3) float32 spatial-bin means
     cell_scores: np.ndarray | None  # (n_cr, n_cc) float64 histogram score of each cell
     f: int  # pixels per spatial bin
-    hog_blocks: bool = True  # False: the HOG blocks' part of the margins left out (the warm-up)
 
 
 def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bool, frame: bool) -> _BandFeatures:
@@ -809,12 +811,13 @@ def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bo
     if frame:
         cells = buffer("cells", (n_hc, n_cr, n_cc, cfg.orientations), np.float32)
         planes = _planes(hog_input(conv, cfg), cfg.hog_channels, buffer("planes", (n_hc,) + conv.shape[:2], np.uint8))
-        _region_cells(planes, _flat_lut(cfg.orientations, cfg.signed), ppc, cfg.orientations, cells)
+        _region_cells(planes, _flat_lut(cfg.orientations, cfg.signed), ppc, cfg.orientations,
+                      *_cell_work(n_cc, ppc, cfg.orientations), cells)
         blocks = buffer("blocks", (n_hc, n_cr - cpb + 1, n_cc - cpb + 1, cfg.block_size), np.float32)
         if hog_blocks:
             _block_map(cells, cpb, blocks)
         else:
-            blocks.fill(0.0)  # the warm-up's blank search, without the block kernels
+            blocks.fill(0.0)  # the warm-up's blank search, without the block kernel (scored: that kernel compiles)
     else:
         # Cells are summed in float64 and stored in float32: half the memory traffic; margins
         # stay within 1e-6 of the plain path's (float64 throughout).
@@ -829,21 +832,22 @@ def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bo
     cell_scores = None
     if cfg.spatial_size or cfg.hist_bins:
         cell_scores = buffer("cell_scores", (n_cr, n_cc))
-        _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
-    return _BandFeatures(conv, variants, squares, blocks, bin_means, cell_scores, f, hog_blocks)
+        _colour_sums(conv, f, ppc, folded.hist_lut, np.empty(bin_means.shape[1] * 3, np.int64), bin_means, cell_scores)
+    return _BandFeatures(conv, variants, squares, blocks, bin_means, cell_scores, f)
 
 
 def _margins(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Margins of the windows at ``rows`` x ``cols`` (top-left cells, increasing): ``(len(rows), len(cols))``."""
     cfg, folded = model.config, _kernel_weights(model)
     out = np.zeros((len(rows), len(cols)))
-    if feats.blocks is not None and feats.hog_blocks:
+    if feats.blocks is not None:
         _score_blocks(feats.blocks, folded.hog, rows, cols, out)
     elif feats.squares is not None:
         _score_hog(feats.variants, cfg.cells_per_block, folded.hog, rows, cols, feats.squares, out)
     if feats.cell_scores is not None:
-        _score_colour(feats.bin_means, folded.spatial, feats.f, feats.cell_scores, cfg.cells_per_window, cfg.pixels_per_cell,
-                      rows, cols, bool(cfg.spatial_size), bool(cfg.hist_bins), out)
+        means = feats.bin_means.reshape(feats.bin_means.shape[0], -1)
+        _score_colour(means, folded.spatial, feats.f, feats.cell_scores, cfg.cells_per_window, cfg.pixels_per_cell,
+                      rows, cols, bool(cfg.hist_bins), out)
     return out + folded.bias
 
 
@@ -871,13 +875,20 @@ def _refine_products(feats: _BandFeatures, model: VehicleClassifier, band: _Band
     out = np.zeros((len(index), 4))
     if len(index):
         rows, cols = band.rows[index // len(band.cols)], band.cols[index % len(band.cols)]
-        if feats.blocks is not None:
-            _hog_products_frame(feats.blocks, refine[0], rows, cols, out)
-        else:
-            _hog_products_crop(feats.variants, cfg.cells_per_block, refine[0], rows, cols, out)
-        _colour_products(feats.bin_means, refine[1], feats.f, feats.conv, refine[2], ppc, cfg.cells_per_window,
+        _refine_hog(feats, model, rows, cols, out)
+        _colour_products(feats.bin_means.reshape(feats.bin_means.shape[0], -1), refine[1], feats.f, feats.conv, refine[2],
+                         ppc, cfg.cells_per_window,
                          rows, cols, np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), out)
     return out
+
+
+def _refine_hog(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
+    """The HOG part of :func:`_refine_products` for the windows at ``rows``, ``cols``, added to ``out`` (n, 4)."""
+    refine = _kernel_weights(model).refine
+    if feats.blocks is not None:
+        _hog_products_frame(feats.blocks, refine[0], rows, cols, out)
+    else:
+        _hog_products_crop(feats.variants, model.config.cells_per_block, refine[0], rows, cols, out)
 
 
 def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True,
@@ -892,9 +903,10 @@ def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_b
 
     ``cascade=(threshold, coarse_margin)``: the two-stage search of
     :attr:`SearchPlan.coarse_margin` (windows not scored get ``-inf``); None scores every window.
-    ``reuse``: work arrays kept for the next frame (whole bands). ``hog_blocks=False`` leaves out
-    the HOG blocks' part of the margins (for the warm-up, which compiles that kernel in a helper
-    process meanwhile). ``frame``: the plan's ``window_border`` is ``"frame"``.
+    ``reuse``: work arrays kept for the next frame (whole bands). ``hog_blocks=False`` (the
+    warm-up, whose helper process compiles the block kernel meanwhile) leaves the HOG blocks
+    zero: with ``"frame"`` they are still scored, with ``"crop"`` their part of the margins is
+    left out. ``frame``: the plan's ``window_border`` is ``"frame"``.
     """
     buffer = _buffer if reuse else (lambda name, shape, dtype=np.float64: np.empty(shape, dtype))
     feats = _band_features(band, model, buffer, hog_blocks, frame)
