@@ -9,7 +9,9 @@ region) into OUT_DIR, then scores them with::
     vehicle-detection evaluate --labels OUT_DIR/NAME_clip_A.json OUT_DIR/NAME_clip_A_tracks.json [--horizon plan]
 
 A crop that starts lower or higher moves the road's vanishing point up or down in the frame, as a
-camera tilted down or up would; the resize changes the frame size and the cars' size in pixels.
+camera tilted down or up would; the resize changes the frame size and the cars' size in pixels. A
+small crop scaled up to 1280x720 is a longer lens: the cars as they would look closer (the
+``zoomed`` views, 1.5 and 2 times).
 """
 
 from __future__ import annotations
@@ -29,6 +31,10 @@ CAMERAS = {
     "tilted_down_960x540": ((80, 90, 1200, 720), (960, 540)),
     "tilted_up_960x472": ((0, 0, 1280, 630), (960, 472)),
     "tilted_down_1280x600": ((0, 120, 1280, 720), (1280, 600)),
+    # a longer lens: the cars 1.5 and 2 times as large, as closer cars would be (the right half of
+    # the road, where clip A's cars drive; the horizon stays near the middle)
+    "zoomed_1.5x_1280x720": ((427, 180, 1280, 660), (1280, 720)),
+    "zoomed_2x_1280x720": ((640, 220, 1280, 580), (1280, 720)),
 }
 
 

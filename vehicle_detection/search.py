@@ -119,12 +119,15 @@ class SearchScale:
 
 
 def _default_scales():
+    # Each integer scale's band is a whole number of its scaled rows (303 = 101 x 3, 380 = 76 x 5):
+    # OpenCV's INTER_AREA then resizes it by plain block means, its fast path.
     return (
         SearchScale(1.0, 384, 496, step=1),
         SearchScale(1.5, 384, 544, step=1),
         SearchScale(2.0, 384, 592, step=1),
-        SearchScale(3.0, 384, 688, step=1),
+        SearchScale(3.0, 384, 687, step=1),
         SearchScale(4.0, 336, 720, step=1),
+        SearchScale(5.0, 336, 716, step=1),  # 320-pixel windows, for cars close to the camera
     )
 
 
