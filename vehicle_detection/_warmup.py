@@ -6,9 +6,9 @@ kernels on a laptop core, after about a second of numba's own start. On a cold c
 (normalising the blocks) and the box refinement's colour kernel into the cache while this
 process compiles the others: the HOG cells, the two colour kernels, the windows' HOG scores and
 the refinement's HOG part (a real band's scoring with its blocks left zero, on a blank frame,
-so with exactly the argument types of a real search); this process then loads the helper's kernels from the cache. The helper
-also pays its imports and numba's start, so it takes the smaller share of the kernels. The
-kernels are those of the default search (``window_border="frame"``); a plan with ``"crop"``
+so with exactly the argument types of a real search); this process then loads the helper's
+kernels from the cache. The helper also pays its imports and numba's start, so it takes the
+smaller share of the kernels. The kernels are those of the default search (``window_border="frame"``); a plan with ``"crop"``
 compiles its own on first use. No kernel allocates an array (work arrays are passed in):
 numba then has no allocation code of its own to compile first, which is a third of a second.
 The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
