@@ -1,7 +1,7 @@
 """Cold start, warm start, real time and memory of ``vehicle-detection detect``, end to end.
 
     python benchmarks/bench_startup.py [--runs N] [--long-loops 5] [--skip-long] [--skip-start] [--timeline]
-                                       [-- EXTRA CLI ARGS]
+                                       [--kernels] [-- EXTRA CLI ARGS]
 
 Every figure is a whole command-line run in a subprocess (process start, imports, model loading,
 kernel compilation or cache loading, decode, detect, track, draw, encode, CSV):
@@ -24,7 +24,11 @@ kernel compilation or cache loading, decode, detect, track, draw, encode, CSV):
    ``os.wait4``, per child): it should not grow with the video's length;
 5. with ``--timeline``, once more the long clip, through ``process_video`` in this process with
    a :class:`~vehicle_detection.io.Timeline` (no process start, kernels already loaded): where a
-   frame's time goes, stage by stage and thread by thread, as a table.
+   frame's time goes, stage by stage and thread by thread, as a table;
+6. with ``--kernels``, ``--runs`` times: in a new process on one core with a fresh numba cache,
+   numba's own start (a trivial kernel compiled first), then each search kernel's compile time
+   as one search of a test image compiles it (numba's compile events), their total and the first
+   search's time: what a fresh install's first run compiles, without the helper process.
 
 Extra arguments after ``--`` are passed to every ``detect`` run (e.g. ``-- --model M``).
 """
@@ -90,8 +94,14 @@ def main():
     ap.add_argument("--skip-start", action="store_true", help="real time and memory only")
     ap.add_argument("--timeline", action="store_true",
                     help="also time the long clip's stages (process_video with a Timeline, in this process)")
+    ap.add_argument("--kernels", action="store_true",
+                    help="only each search kernel's compile time, one core, fresh cache (--runs times)")
     args = ap.parse_args(argv)
     print(f"{os.cpu_count()} cores, python {sys.version.split()[0]}, extra args {extra or 'none'}")
+    if args.kernels:
+        for _ in range(args.runs):
+            print_kernel_compile_times()
+        return
 
     with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp_name:
         tmp = Path(tmp_name)
@@ -141,6 +151,51 @@ def main():
         print(f"peak RSS, {n_long} frames: {_stats([r / 2**20 for r in rss_long], '{:.0f}')} MiB")
         if args.timeline:
             print_timeline(long, tmp, cache)
+
+
+_KERNEL_TIMES = """
+import os, sys, time
+if hasattr(os, "sched_setaffinity"):
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core: no helper process
+import numpy as np
+from numba import njit
+from numba.core import event
+t = time.perf_counter()
+njit(lambda a: a.sum() + 1.0)(np.zeros(3))
+print(f"numba's own start (a trivial kernel): {time.perf_counter() - t:.2f} s")
+class Times(event.Listener):
+    def __init__(self):
+        self.start, self.done = {}, []
+    def on_start(self, ev):
+        self.start[id(ev.data["dispatcher"])] = (time.perf_counter(), len(self.start))
+    def on_end(self, ev):
+        t, depth = self.start.pop(id(ev.data["dispatcher"]))
+        f = ev.data["dispatcher"].py_func
+        if f.__module__.startswith("vehicle_detection"):
+            self.done.append((f.__name__, time.perf_counter() - t, depth))
+times = Times()
+event.register("numba:compile", times)
+import vehicle_detection as vd
+from vehicle_detection.search import search
+image, model = vd.read_image(sys.argv[1]), vd.load_default_model()
+t = time.perf_counter()
+search(image, model)
+first = time.perf_counter() - t
+for name, s, depth in times.done:
+    print(f"  {'  ' * depth}{name:22s} {s:.2f} s")
+print(f"first search (compiling included): {first:.2f} s; the kernels' compile times: "
+      f"{sum(s for _, s, depth in times.done if depth == 0):.2f} s (an indented kernel is compiled inside the one below it)")
+"""
+
+
+def print_kernel_compile_times() -> None:
+    """One fresh process on one core with an empty numba cache: each search kernel's compile time."""
+    with tempfile.TemporaryDirectory(prefix="bench-kernels-") as cache:
+        done = subprocess.run([sys.executable, "-c", _KERNEL_TIMES, str(REPO / "test_images" / "test1.jpg")],
+                              env=_env(Path(cache)), cwd=REPO, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"kernel timing failed: {done.stderr[-2000:]}")
+    print(done.stdout, end="", flush=True)
 
 
 def print_timeline(video: Path, tmp: Path, cache: Path) -> None:
