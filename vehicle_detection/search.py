@@ -804,6 +804,11 @@ class _BandFeatures:
     cell_scores: np.ndarray | None  # (n_cr, n_cc) float64 histogram score of each cell
     f: int  # pixels per spatial bin
 
+    @property
+    def bin_rows(self) -> np.ndarray:
+        """The bin means as the colour kernels read them: (h // f, w // f * 3), a view."""
+        return self.bin_means.reshape(self.bin_means.shape[0], -1)
+
 
 def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bool, frame: bool) -> _BandFeatures:
     cfg, folded = model.config, _kernel_weights(model)
@@ -848,8 +853,7 @@ def _margins(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, c
     elif feats.squares is not None:
         _score_hog(feats.variants, cfg.cells_per_block, folded.hog, rows, cols, feats.squares, out)
     if feats.cell_scores is not None:
-        means = feats.bin_means.reshape(feats.bin_means.shape[0], -1)
-        _score_colour(means, folded.spatial, feats.f, feats.cell_scores, cfg.cells_per_window, cfg.pixels_per_cell,
+        _score_colour(feats.bin_rows, folded.spatial, feats.f, feats.cell_scores, cfg.cells_per_window, cfg.pixels_per_cell,
                       rows, cols, bool(cfg.hist_bins), out)
     return out + folded.bias
 
@@ -879,8 +883,7 @@ def _refine_products(feats: _BandFeatures, model: VehicleClassifier, band: _Band
     if len(index):
         rows, cols = band.rows[index // len(band.cols)], band.cols[index % len(band.cols)]
         _refine_hog(feats, model, rows, cols, out)
-        _colour_products(feats.bin_means.reshape(feats.bin_means.shape[0], -1), refine[1], feats.f, feats.conv, refine[2],
-                         ppc, cfg.cells_per_window,
+        _colour_products(feats.bin_rows, refine[1], feats.f, feats.conv, refine[2], ppc, cfg.cells_per_window,
                          rows, cols, np.empty((n_cr, n_cc, 4)), np.zeros((n_cr, n_cc), np.bool_), out)
     return out
 
