@@ -274,3 +274,54 @@ def test_a_car_larger_than_192_px_gets_a_fitting_box(name, zoom):
     found = Detector().detect_image(big)
     overlapping = found.xyxy[box_iou(found.xyxy, truth)[:, 0] > 0]
     assert len(overlapping) == 1 and box_iou(overlapping, truth)[0, 0] >= 0.7
+
+
+# --- sides fitted to the frame -----------------------------------------------------------------
+
+
+def _with_side_fit(model, fit):
+    return Detector(model.replace(detector_config=model.detector_config.replace(side_fit=fit)))
+
+
+def test_reported_boxes_have_their_sides_fitted_to_the_frame(default_model, test_frames):
+    from vehicle_detection.refine import SideFit, fit_sides
+
+    plain, fitted = _with_side_fit(default_model, None), _with_side_fit(default_model, SideFit())
+    moved = 0
+    for frame in test_frames:
+        before, after = plain.detect_image(frame), fitted.detect_image(frame)
+        assert after.xyxy.tolist() == fit_sides(frame, before.xyxy, SideFit()).tolist()
+        assert after.score.tolist() == before.score.tolist()
+        moved += int((after.xyxy != before.xyxy).any(axis=1).sum())
+    assert moved >= 3
+
+
+def test_tracked_boxes_and_their_back_fill_are_fitted_in_their_own_frames(default_model, clip_a_frames):
+    """Every box a video reports, back-filled ones too (the first frames of a track), is the
+    unfitted box with its sides fitted in the frame it belongs to; the tracks are the same."""
+    from vehicle_detection.refine import SideFit, fit_sides
+
+    frames = clip_a_frames[:16]
+    plain = list(_with_side_fit(default_model, None).track_frames(frames))
+    fitted = list(_with_side_fit(default_model, SideFit()).track_frames(frames))
+    assert sum(len(d) for _, d in plain) >= 20 and len(plain[0][1]) >= 1  # frame 0's boxes are back-filled
+    for (frame, before), (same, after) in zip(plain, fitted):
+        assert same is frame
+        assert after.track_id.tolist() == before.track_id.tolist() and after.frame.tolist() == before.frame.tolist()
+        assert after.xyxy.tolist() == fit_sides(frame, before.xyxy, SideFit()).tolist()
+    assert any((a.xyxy != b.xyxy).any() for (_, b), (_, a) in zip(plain, fitted))
+
+
+def test_side_fit_setting_round_trips():
+    from vehicle_detection.refine import SideFit
+
+    cfg = DetectorConfig()
+    assert cfg.side_fit == SideFit() and DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    off = cfg.replace(side_fit=None)
+    assert DetectorConfig.from_dict(off.to_dict()) == off and off.to_dict()["side_fit"] is None
+    old = cfg.to_dict()
+    del old["side_fit"]  # files saved before it report their boxes as they did
+    assert DetectorConfig.from_dict(old).side_fit is None
+    assert DetectorConfig.library_0_1().side_fit is None
+    with pytest.raises(ValueError, match="side_fit"):
+        DetectorConfig(side_fit=(0.1, 0.07))

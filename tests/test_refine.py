@@ -16,10 +16,12 @@ from vehicle_detection.geometry import box_iou
 from vehicle_detection.refine import (
     MAX_OFFSET,
     BoxRegressor,
+    SideFit,
     apply_offsets,
     crop_windows,
     edge_offsets,
     fit_box_regressor,
+    fit_sides,
     jittered_windows,
 )
 from vehicle_detection.search import SearchPlan, SearchScale, search
@@ -219,3 +221,107 @@ def test_search_reads_the_refinement_off_the_features_it_scored_with(default_mod
             want = features @ model.box_regressor.coef.T
             np.testing.assert_allclose(products[hot], want, rtol=1e-4, atol=1e-5)
         assert n_hot > 5
+
+
+# --- sides fitted to the image -------------------------------------------------------------------
+
+
+def _dark_car(x1=500, x2=700, y1=300, y2=420, shape=(480, 854), seed=0):
+    """A grey road with noise and a dark car ``[x1, x2) x [y1, y2)``, its rear window lighter."""
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(110, 130, (*shape, 3)).astype(np.uint8)
+    frame[y1:y2, x1:x2] = 40
+    w, h = x2 - x1, y2 - y1
+    frame[y1 + h // 8 : y1 + h // 3, x1 + w // 6 : x2 - w // 6] = 90  # rear window, above the rows that count
+    return frame
+
+
+@pytest.mark.parametrize("off", [(-12, 9), (10, -14), (-6, -6), (15, 15)])
+def test_sides_move_onto_the_vehicle_edges(off):
+    frame = _dark_car()
+    box = np.array([[500 + off[0], 300, 700 + off[1], 420]])
+    fitted = fit_sides(frame, box, SideFit())[0]
+    assert abs(fitted[0] - 500) <= 1 and abs(fitted[2] - 700) <= 1  # within a pixel of the car's sides
+    assert fitted[1:4:2].tolist() == [300, 420]  # top and bottom as they were
+
+
+def test_a_side_further_than_the_reach_moves_at_most_the_reach():
+    frame = _dark_car()
+    box = np.array([[460, 300, 740, 420]])  # 40 px outside each side; reach 0.1 x 280 = 28 px
+    fitted = fit_sides(frame, box, SideFit())[0]
+    assert abs(fitted[0] - 460) <= 28 and abs(fitted[2] - 740) <= 28
+    wider = fit_sides(frame, box, SideFit(reach=0.2))[0]  # within reach now
+    assert abs(wider[0] - 500) <= 1 and abs(wider[2] - 700) <= 1
+
+
+def test_the_outline_wins_over_a_stronger_edge_inside():
+    """A bright tail light 6 px inside the left side: its edges are stronger than the outline's;
+    ``outer`` keeps the side on the outline, ``outer=1`` takes the strongest edge."""
+    frame = _dark_car()
+    frame[340:400, 506:520] = 255
+    box = np.array([[503, 300, 700, 420]])
+    assert abs(fit_sides(frame, box, SideFit(outer=0.5))[0, 0] - 500) <= 1
+    assert fit_sides(frame, box, SideFit(outer=1.0))[0, 0] >= 505
+
+
+def test_a_vehicle_cut_by_the_frame_keeps_the_frame_edge():
+    frame = _dark_car(x1=700, x2=854)
+    for x2 in (854, 845):  # at the edge, and short of it by 9 px (reach 0.1 x 150 = 15 px)
+        fitted = fit_sides(frame, np.array([[702, 300, x2, 420]]), SideFit())[0]
+        assert fitted[2] == 854 and abs(fitted[0] - 700) <= 1
+
+
+def test_flat_and_tiny_boxes_are_left_alone():
+    flat = np.full((200, 300, 3), 128, np.uint8)
+    boxes = np.array([[50, 50, 150, 120], [10, 10, 16, 40]])
+    assert fit_sides(flat, boxes, SideFit()).tolist() == boxes.tolist()
+    noisy = _dark_car(shape=(200, 300), x1=100, x2=200, y1=50, y2=120)
+    assert fit_sides(noisy, boxes[1:], SideFit()).tolist() == boxes[1:].tolist()  # 6 px wide: too small to measure
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(-5, 300), st.integers(-5, 200), st.integers(1, 400), st.integers(1, 300))
+def test_fitted_sides_stay_inside_the_frame(seed, x, y, w, h):
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(0, 256, (200, 300, 3)).astype(np.uint8)
+    box = np.array([[max(0, x), max(0, y), min(300, max(0, x) + w), min(200, max(0, y) + h)]])
+    if box[0, 2] <= box[0, 0] or box[0, 3] <= box[0, 1]:
+        return
+    fitted = fit_sides(frame, box, SideFit())[0]
+    assert 0 <= fitted[0] < fitted[2] <= 300 and fitted[1:4:2].tolist() == box[0, 1:4:2].tolist()
+    bw = box[0, 2] - box[0, 0]
+    assert abs(fitted[0] - box[0, 0]) <= 0.1 * bw + 1 and abs(fitted[2] - box[0, 2]) <= 0.1 * bw + 1
+
+
+def test_side_fit_settings_are_checked_and_round_trip():
+    fit = SideFit(reach=0.15, prior=0.05, outer=0.8, rows=(0.2, 0.9))
+    assert SideFit.from_dict(fit.to_dict()) == fit
+    for bad in (dict(reach=0.0), dict(reach=0.5), dict(prior=-1.0), dict(outer=0.0), dict(outer=1.5), dict(rows=(0.9, 0.2)), dict(reach=True)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            SideFit(**bad)
+    with pytest.raises(ValueError, match="keys"):
+        SideFit.from_dict({"reach": 0.1})
+
+
+def test_side_fit_tightens_the_boxes_of_the_labelled_test_images(default_model, test_frames):
+    """The six test images against their labels (dev_set/test_images.json): the fitted boxes
+    overlap their cars more than the same detector's boxes without the fit."""
+    import json
+
+    from vehicle_detection.detector import Detector
+
+    labels = json.loads((Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json").read_text())["frames"]
+    fitted = Detector(default_model.replace(detector_config=default_model.detector_config.replace(side_fit=SideFit())))
+    plain = Detector(default_model.replace(detector_config=default_model.detector_config.replace(side_fit=None)))
+    gains = []
+    for key, entry in labels.items():
+        cars = np.array(entry["cars"], np.float64).reshape(-1, 4)
+        if not len(cars):
+            continue
+        frame = test_frames[int(key)]
+        before = plain.detect_image(frame).xyxy
+        after = fitted.detect_image(frame).xyxy
+        assert len(after) == len(before)
+        gains.append(box_iou(cars, after).max(axis=1) - box_iou(cars, before).max(axis=1))
+    gains = np.concatenate(gains)
+    assert gains.mean() > 0.01 and (gains > 0).sum() > (gains < 0).sum()

@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from .refine import SideFit
 from .search import SearchPlan, SearchScale
 from .tracker import TrackerConfig
 
@@ -48,6 +49,7 @@ class DetectorConfig:
     image_threshold: float = 3.0
     auto_horizon: bool = True
     auto_overlays: bool = True
+    side_fit: SideFit | None = field(default_factory=SideFit)
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -61,6 +63,8 @@ class DetectorConfig:
         for name in ("auto_horizon", "auto_overlays"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"DetectorConfig.{name} must be True or False; got {getattr(self, name)!r}")
+        if self.side_fit is not None and not isinstance(self.side_fit, SideFit):
+            raise ValueError(f"DetectorConfig.side_fit must be a SideFit or None; got {type(self.side_fit).__name__}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -87,7 +91,7 @@ class DetectorConfig:
             decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
             aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
         )
-        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False)
+        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False, side_fit=None)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""
@@ -120,6 +124,7 @@ class DetectorConfig:
             "image_threshold": self.image_threshold,
             "auto_horizon": self.auto_horizon,
             "auto_overlays": self.auto_overlays,
+            "side_fit": None if self.side_fit is None else self.side_fit.to_dict(),
         }
 
     @classmethod
@@ -128,7 +133,8 @@ class DetectorConfig:
 
         Files saved before ``auto_horizon`` load with it False (their bands as they were
         searched); files saved before ``auto_overlays`` with it True (it changes nothing on
-        footage without bars or static overlays, such as the project camera's).
+        footage without bars or static overlays, such as the project camera's); files saved
+        before ``side_fit`` with None (their boxes as they were reported).
 
         Raises
         ------
@@ -136,14 +142,16 @@ class DetectorConfig:
             If a key is missing or unknown, or a value is out of range.
         """
         keys = {"plan", "tracker", "image_threshold"}
-        if not isinstance(d, dict) or not keys <= set(d) <= keys | {"auto_horizon", "auto_overlays"}:
+        if not isinstance(d, dict) or not keys <= set(d) <= keys | {"auto_horizon", "auto_overlays", "side_fit"}:
             raise ValueError(
-                "expected an object with 'plan', 'tracker', 'image_threshold' and optionally 'auto_horizon', 'auto_overlays'"
+                "expected an object with 'plan', 'tracker', 'image_threshold' and optionally 'auto_horizon', 'auto_overlays', 'side_fit'"
             )
+        side_fit = d.get("side_fit")
         return cls(
             plan=SearchPlan.from_dict(d["plan"]),
             tracker=TrackerConfig.from_dict(d["tracker"]),
             image_threshold=d["image_threshold"],
             auto_horizon=d.get("auto_horizon", False),
             auto_overlays=d.get("auto_overlays", True),
+            side_fit=None if side_fit is None else SideFit.from_dict(side_fit),
         )

@@ -37,6 +37,7 @@ from .horizon import TOLERANCE, estimate_horizon
 from .io.images import as_image, as_rgb_uint8
 from .io.timeline import Timeline, timing
 from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
+from .refine import fit_sides
 from .search import search
 from .tracker import Tracker, window_heat
 
@@ -285,7 +286,7 @@ class Detector:
             win, weights = self._heat_boxes(windows)
             boxes, peaks = split_blobs(boxes, peaks, win, weights, iou=cfg.cluster_iou)
             boxes = vote_boxes(boxes, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
-        return self._inside(Detections(boxes, score=peaks), self._picture(image))
+        return self.fit_boxes(image, self._inside(Detections(boxes, score=peaks), self._picture(image)))
 
     def new_tracker(self) -> Tracker:
         """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""
@@ -300,11 +301,34 @@ class Detector:
         """
         around = self._scheduled_around(tracker, tracker.state.frame_index)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
-        return self.track_step(frame.shape, wins, tracker)
+        return self.fit_boxes(frame, self.track_step(frame.shape, wins, tracker))
 
     def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
-        """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`)."""
+        """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`): the tracks'
+        boxes as the tracker keeps them, before :meth:`fit_boxes`."""
         return self._inside(tracker.update(self._tracker_input(windows), frame_shape), self._overlays)
+
+    def fit_boxes(self, frame: np.ndarray, found: Detections) -> Detections:
+        """``found`` with each box's sides fitted to its vehicle's edges in ``frame``
+        (:func:`~vehicle_detection.refine.fit_sides`, with ``config.side_fit``; unchanged when
+        that is None). Every box this detector reports has been through it; the tracker keeps
+        its own boxes, so the fit never feeds back into the tracks."""
+        fit = self.config.side_fit
+        if fit is None or not len(found):
+            return found
+        return found.replace(xyxy=fit_sides(frame, found.xyxy, fit))
+
+    def _fit_past(self, found: Detections, frames: dict[int, np.ndarray]) -> Detections:
+        """:meth:`fit_boxes` for rows of several frames (the tracker's back-fill), each in its own
+        frame of ``frames`` (``{index: frame}``); rows of other frames stay as they are."""
+        if self.config.side_fit is None or not len(found):
+            return found
+        xyxy = found.xyxy.copy()
+        for index, frame in frames.items():
+            rows = found.frame == index
+            if rows.any():
+                xyxy[rows] = fit_sides(frame, xyxy[rows], self.config.side_fit)
+        return found.replace(xyxy=xyxy)
 
     def track_frames(
         self,
@@ -371,14 +395,18 @@ class Detector:
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
         clock.lap("footage", t)
         search = clock.timed("search", det.windows)
+        # the frames the back-fill can fall on: it reaches back min_hits - 1 frames
+        recent: deque = deque(maxlen=max(1, self.config.tracker.min_hits))
 
         def advance(frame, future):
             t = clock.now()
             windows = future.result()
             t = clock.lap("search_wait", t)
             index = tracker.state.frame_index
-            found = det.track_step(frame.shape, windows, tracker)
+            recent.append((index, frame))
+            found = det.fit_boxes(frame, det.track_step(frame.shape, windows, tracker))
             backfill = det._inside(tracker.backfill, det._overlays)
+            backfill = det._fit_past(backfill, dict(recent))
             clock.lap("track", t)
             return frame, index, found, backfill
 

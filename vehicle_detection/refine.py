@@ -1,4 +1,4 @@
-"""Box refinement: from a hot window's features, where the vehicle's four edges are.
+"""Box refinement: from a hot window's features, where the vehicle's four edges are; and a box's sides fitted to the vehicle's edges.
 
 A window the classifier accepts rarely frames its vehicle: the windows are square, sit on a
 coarse grid, and come in a few sizes, while vehicles are wider than tall and of every size. As
@@ -12,13 +12,21 @@ of the vehicle's edges from the window's edges in units of the window's size:
 vehicles in real frames; :meth:`BoxRegressor.refine` applies it. Refined boxes are clipped to
 the frame, so refinement never moves a box outside it.
 
+The regression learns the shape of the vehicles it was fitted on, and a camera it never saw has
+vehicles of other shapes in other places. :func:`fit_sides` then moves each final box's left and
+right sides onto the vehicle's own vertical edges, read off the image: the strongest column of
+horizontal gradient near each side, at the height of the vehicle's body, with a prior that the
+side is about right. It learns nothing, so it transfers to any camera.
+
 Boxes are ``(n, 4)`` arrays ``[x1, y1, x2, y2]`` in frame pixels, x2 and y2 exclusive.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -27,7 +35,7 @@ from ._jit import njit
 from .features import FeatureConfig, extract_features
 from .geometry import as_boxes
 
-__all__ = ["BoxRegressor", "edge_offsets", "apply_offsets", "jittered_windows", "crop_windows", "working_frame", "fit_box_regressor"]
+__all__ = ["BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "crop_windows", "working_frame", "fit_box_regressor"]
 
 #: Largest predicted edge offset, in window sizes: a window far off its vehicle is not trusted
 #: to move further than this.
@@ -235,3 +243,141 @@ def fit_box_regressor(
     ridge = Ridge(alpha=alpha).fit((x - scaler.mean_) / scale, y)
     coef = ridge.coef_ / scale
     return BoxRegressor(coef, ridge.intercept_ - coef @ scaler.mean_)
+
+
+# --------------------------------------------------------------------------------------------
+# Sides fitted to the image
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SideFit:
+    """How :func:`fit_sides` moves a box's left and right sides onto the vehicle's edges.
+
+    Parameters
+    ----------
+    reach : float, default 0.1
+        Each side may move up to this fraction of the box's width, inwards or outwards, in
+        ``(0, 0.5)``.
+    prior : float, default 0.07
+        Standard deviation of the Gaussian prior on a side's move, as a fraction of the box's
+        width, > 0: a column's edge strength is weighed by it, so a side moves far only to a
+        much stronger edge.
+    outer : float, default 0.9
+        A side goes to the outermost column whose weighed strength is at least this share of
+        the best, in ``(0, 1]``: a vehicle's outline lies outside its lights and number plate,
+        whose edges can be as strong. 1 takes the best column.
+    rows : (float, float), default (0.3, 0.95)
+        The rows of the box whose edges count, as fractions of its height from its top,
+        ``0 <= top < bottom <= 1``: the vehicle's body, below the roof (where the background
+        shows beside it) and above the road.
+
+    Raises
+    ------
+    ValueError
+        If a value is out of range; the message names the field.
+    """
+
+    reach: float = 0.1
+    prior: float = 0.07
+    outer: float = 0.9
+    rows: tuple[float, float] = (0.3, 0.95)
+
+    def __post_init__(self) -> None:
+        checks = {"reach": (0.0, 0.5, False), "prior": (0.0, math.inf, False), "outer": (0.0, 1.0, True)}
+        for name, (lo, hi, closed) in checks.items():
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo < v and (v <= hi if closed else v < hi)
+            if not ok:
+                raise ValueError(f"SideFit.{name} must be a number in ({lo}, {hi}{']' if closed else ')'}; got {v!r}")
+            object.__setattr__(self, name, float(v))
+        rows = tuple(self.rows) if isinstance(self.rows, (tuple, list)) else ()
+        if len(rows) != 2 or not all(isinstance(r, (int, float)) and not isinstance(r, bool) for r in rows) or not 0 <= rows[0] < rows[1] <= 1:
+            raise ValueError(f"SideFit.rows must be two fractions 0 <= top < bottom <= 1; got {self.rows!r}")
+        object.__setattr__(self, "rows", (float(rows[0]), float(rows[1])))
+
+    def to_dict(self) -> dict:
+        """Plain JSON data."""
+        return {"reach": self.reach, "prior": self.prior, "outer": self.outer, "rows": list(self.rows)}
+
+    @classmethod
+    def from_dict(cls, d: Any) -> SideFit:
+        """The inverse of :meth:`to_dict`.
+
+        Raises
+        ------
+        ValueError
+            If a key is missing or unknown, or a value is out of range.
+        """
+        keys = {"reach", "prior", "outer", "rows"}
+        if not isinstance(d, dict) or set(d) != keys:
+            raise ValueError(f"expected an object with exactly the keys {sorted(keys)}")
+        return cls(reach=d["reach"], prior=d["prior"], outer=d["outer"], rows=tuple(d["rows"]))
+
+
+def _column_strength(image: np.ndarray, top: int, bottom: int, left: int, right: int) -> np.ndarray:
+    """Mean absolute horizontal gradient (Sobel, the strongest of the three channels) of each
+    column ``left..right-1`` over rows ``top..bottom-1``, smoothed over three columns: float64."""
+    h, w = image.shape[:2]
+    # two columns of context each side, so the gradient and the smoothing see real pixels
+    c0, c1 = max(0, left - 2), min(w, right + 2)
+    crop = image[top:bottom, c0:c1].astype(np.float32)
+    gx = np.abs(cv2.Sobel(crop, cv2.CV_32F, 1, 0, ksize=3)).max(axis=2)
+    profile = np.convolve(gx.mean(axis=0, dtype=np.float64), np.ones(3) / 3.0, mode="same")
+    return profile[left - c0 : right - c0]
+
+
+def _side(profile: np.ndarray, start: int, at: float, sigma: float, outer: float, outwards: int, frame_edge: bool) -> int:
+    """The column of one side: ``profile[i]`` is column ``start + i``'s strength; the side is now
+    at column ``at``; ``outwards`` is -1 for a left side, +1 for a right one."""
+    peak = profile.max()
+    if not peak > 0:  # a flat patch: nothing to go by
+        return int(round(at))
+    strength = profile / peak
+    if frame_edge:  # a vehicle cut by the frame ends at the frame's edge
+        strength[0 if outwards < 0 else -1] = 1.0
+    cols = start + np.arange(len(profile))
+    weighed = strength * np.exp(-0.5 * ((cols - at) / sigma) ** 2)
+    good = np.flatnonzero(weighed >= outer * weighed.max())
+    return int(cols[good[0] if outwards < 0 else good[-1]])
+
+
+def fit_sides(image: np.ndarray, boxes: np.ndarray, fit: SideFit) -> np.ndarray:
+    """Boxes whose left and right sides are moved onto the vehicle's vertical edges.
+
+    For each side, the columns within ``fit.reach`` of the box's width either side of it are
+    weighed by their edge strength (the mean absolute horizontal gradient over the rows
+    ``fit.rows`` of the box, the strongest colour channel) times a Gaussian prior centred on
+    the side; the side goes to the outermost column within ``fit.outer`` of the best. A box
+    that reaches the frame's edge may stay there: the edge counts as a vehicle edge of full
+    strength. Top and bottom are left as they are.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+        The frame the boxes were found in.
+    boxes : array_like, shape (n, 4)
+        ``[x1, y1, x2, y2]`` in frame pixels, x2 and y2 exclusive, inside the frame.
+    fit : SideFit
+
+    Returns
+    -------
+    ndarray of int64, shape (n, 4)
+        The boxes with their sides moved, inside the frame; a box too small to measure (under
+        8 pixels wide or high) is returned as it is.
+    """
+    out = np.rint(as_boxes(boxes, "boxes")).astype(np.int64)
+    h, w = image.shape[:2]
+    for box in out:
+        x1, y1, x2, y2 = (int(v) for v in box)
+        bw, bh = x2 - x1, y2 - y1
+        top, bottom = max(0, y1 + int(fit.rows[0] * bh)), min(h, y1 + int(round(fit.rows[1] * bh)))
+        if bw < 8 or bh < 8 or bottom - top < 2 or x1 < 0 or x2 > w:
+            continue
+        reach, sigma = fit.reach * bw, fit.prior * bw
+        # left: the box's first column; right: its last (x2 exclusive)
+        lo, hi = max(0, int(x1 - reach)), min(w, int(x1 + reach) + 1)
+        left = _side(_column_strength(image, top, bottom, lo, hi), lo, x1, sigma, fit.outer, -1, lo == 0)
+        lo, hi = max(0, int(x2 - 1 - reach)), min(w, int(x2 - 1 + reach) + 1)
+        right = _side(_column_strength(image, top, bottom, lo, hi), lo, x2 - 1, sigma, fit.outer, +1, hi == w) + 1
+        if right - left >= 2:
+            box[0], box[2] = left, right
+    return out
