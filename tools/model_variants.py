@@ -12,7 +12,9 @@ the embedded model:
   one camera's frames, to score it on a camera it never saw; ``refine_alpha=A`` sets its ridge
   penalty (default: the embedded refinement's); ``refine=none``: no refinement, but the fixed
   window inset of the models before it (``TrackerConfig``'s default) and no blob splitting or box
-  voting.
+  voting;
+* ``side_fit=none``: the boxes reported as the heat and the tracker give them, their sides not
+  fitted to the frame (:func:`vehicle_detection.refine.fit_sides`).
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
@@ -56,6 +58,9 @@ def model_with(variant: str, folder: Path) -> Path | None:
             raise SystemExit(f"{variant!r}: each part is key=value (e.g. motion=0.1)")
         pairs[name.strip()] = value.strip()
     refine = pairs.pop("refine", "")
+    side_fit = pairs.pop("side_fit", None)
+    if side_fit not in (None, "none"):
+        raise SystemExit(f"{variant!r}: side_fit takes only 'none' (the embedded model fits the sides)")
     files = [] if refine == "none" else [Path(p) for p in refine.split("+") if p]
     alpha = pairs.pop("refine_alpha", None)
     if alpha is not None and not files:
@@ -75,6 +80,8 @@ def model_with(variant: str, folder: Path) -> Path | None:
         tracker = dataclasses.replace(tracker, window_inset=TrackerConfig().window_inset, cluster_iou=0.0)
         model = model.replace(box_regressor=None)
     model = model.replace(detector_config=model.detector_config.replace(tracker=tracker))
+    if side_fit == "none":
+        model = model.replace(detector_config=model.detector_config.replace(side_fit=None))
     model.save(path, overwrite=True)
     return path
 
@@ -100,7 +107,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)

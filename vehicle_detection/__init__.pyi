@@ -13,6 +13,7 @@ from .detector import Detector
 from .features import FeatureConfig, extract_features
 from .horizon import estimate_horizon, vanishing_row
 from .overlays import active_area, find_overlays, static_mask
+from .refine import SideFit, fit_sides
 from .search import SearchPlan, SearchScale
 from .tracker import Tracker, TrackerConfig
 
