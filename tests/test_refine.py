@@ -271,6 +271,16 @@ def test_a_vehicle_cut_by_the_frame_keeps_the_frame_edge():
         assert fitted[2] == 854 and abs(fitted[0] - 700) <= 1
 
 
+def test_the_picture_edge_inside_black_bars_counts_as_the_frame_edge():
+    frame = _dark_car(x1=640, x2=760)
+    frame[:, 760:] = 0  # a pillarbox bar: the picture is columns 0..759
+    box = np.array([[642, 300, 752, 420]])  # short of the picture's edge by 8 px (reach 11 px)
+    assert fit_sides(frame, box, SideFit(), area=(0, 0, 760, 480))[0, 2] == 760
+    assert fit_sides(frame, np.array([[642, 300, 760, 420]]), SideFit(), area=(0, 0, 760, 480))[0, 2] == 760
+    free = fit_sides(frame, box, SideFit())[0, 2]  # the frame's edge is far: the car's own edge at the bar
+    assert abs(free - 760) <= 1
+
+
 def test_flat_and_tiny_boxes_are_left_alone():
     flat = np.full((200, 300, 3), 128, np.uint8)
     boxes = np.array([[50, 50, 150, 120], [10, 10, 16, 40]])

@@ -286,7 +286,8 @@ class Detector:
             win, weights = self._heat_boxes(windows)
             boxes, peaks = split_blobs(boxes, peaks, win, weights, iou=cfg.cluster_iou)
             boxes = vote_boxes(boxes, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
-        return self.fit_boxes(image, self._inside(Detections(boxes, score=peaks), self._picture(image)))
+        picture = self._picture(image)
+        return self.fit_boxes(image, self._inside(Detections(boxes, score=peaks), picture), area=None if picture is None else picture.area)
 
     def new_tracker(self) -> Tracker:
         """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""
@@ -308,15 +309,18 @@ class Detector:
         boxes as the tracker keeps them, before :meth:`fit_boxes`."""
         return self._inside(tracker.update(self._tracker_input(windows), frame_shape), self._overlays)
 
-    def fit_boxes(self, frame: np.ndarray, found: Detections) -> Detections:
+    def fit_boxes(self, frame: np.ndarray, found: Detections, *, area: tuple[int, int, int, int] | None = None) -> Detections:
         """``found`` with each box's sides fitted to its vehicle's edges in ``frame``
         (:func:`~vehicle_detection.refine.fit_sides`, with ``config.side_fit``; unchanged when
         that is None). Every box this detector reports has been through it; the tracker keeps
-        its own boxes, so the fit never feeds back into the tracks."""
+        its own boxes, so the fit never feeds back into the tracks. ``area`` is the picture
+        inside black bars (default: the footage's, :meth:`with_overlays`, else the whole frame)."""
         fit = self.config.side_fit
         if fit is None or not len(found):
             return found
-        return found.replace(xyxy=fit_sides(frame, found.xyxy, fit))
+        if area is None and self._overlays is not None:
+            area = self._overlays.area
+        return found.replace(xyxy=fit_sides(frame, found.xyxy, fit, area=area))
 
     def _fit_past(self, found: Detections, frames: dict[int, np.ndarray]) -> Detections:
         """:meth:`fit_boxes` for rows of several frames (the tracker's back-fill), each in its own
@@ -327,7 +331,7 @@ class Detector:
         for index, frame in frames.items():
             rows = found.frame == index
             if rows.any():
-                xyxy[rows] = fit_sides(frame, xyxy[rows], self.config.side_fit)
+                xyxy[rows] = fit_sides(frame, xyxy[rows], self.config.side_fit, area=None if self._overlays is None else self._overlays.area)
         return found.replace(xyxy=xyxy)
 
     def track_frames(

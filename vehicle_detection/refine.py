@@ -313,12 +313,12 @@ class SideFit:
         return cls(reach=d["reach"], prior=d["prior"], outer=d["outer"], rows=tuple(d["rows"]))
 
 
-def _column_strength(image: np.ndarray, top: int, bottom: int, left: int, right: int) -> np.ndarray:
+def _column_strength(image: np.ndarray, top: int, bottom: int, left: int, right: int, first: int, end: int) -> np.ndarray:
     """Mean absolute horizontal gradient (Sobel, the strongest of the three channels) of each
-    column ``left..right-1`` over rows ``top..bottom-1``, smoothed over three columns: float64."""
-    h, w = image.shape[:2]
+    column ``left..right-1`` over rows ``top..bottom-1``, smoothed over three columns: float64.
+    Only the picture's columns ``first..end-1`` are read (black bars beyond are not)."""
     # two columns of context each side, so the gradient and the smoothing see real pixels
-    c0, c1 = max(0, left - 2), min(w, right + 2)
+    c0, c1 = max(first, left - 2), min(end, right + 2)
     crop = image[top:bottom, c0:c1].astype(np.float32)
     gx = np.abs(cv2.Sobel(crop, cv2.CV_32F, 1, 0, ksize=3)).max(axis=2)
     profile = np.convolve(gx.mean(axis=0, dtype=np.float64), np.ones(3) / 3.0, mode="same")
@@ -340,14 +340,14 @@ def _side(profile: np.ndarray, start: int, at: float, sigma: float, outer: float
     return int(cols[good[0] if outwards < 0 else good[-1]])
 
 
-def fit_sides(image: np.ndarray, boxes: np.ndarray, fit: SideFit) -> np.ndarray:
+def fit_sides(image: np.ndarray, boxes: np.ndarray, fit: SideFit, *, area: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """Boxes whose left and right sides are moved onto the vehicle's vertical edges.
 
     For each side, the columns within ``fit.reach`` of the box's width either side of it are
     weighed by their edge strength (the mean absolute horizontal gradient over the rows
     ``fit.rows`` of the box, the strongest colour channel) times a Gaussian prior centred on
     the side; the side goes to the outermost column within ``fit.outer`` of the best. A box
-    that reaches the frame's edge may stay there: the edge counts as a vehicle edge of full
+    that reaches the picture's edge may stay there: the edge counts as a vehicle edge of full
     strength. Top and bottom are left as they are.
 
     Parameters
@@ -357,27 +357,32 @@ def fit_sides(image: np.ndarray, boxes: np.ndarray, fit: SideFit) -> np.ndarray:
     boxes : array_like, shape (n, 4)
         ``[x1, y1, x2, y2]`` in frame pixels, x2 and y2 exclusive, inside the frame.
     fit : SideFit
+    area : (int, int, int, int), optional
+        The picture inside black bars, ``(x1, y1, x2, y2)`` (:func:`~vehicle_detection.overlays.active_area`):
+        sides move only within its columns, and its left and right edges count as the frame's.
+        Default: the whole frame.
 
     Returns
     -------
     ndarray of int64, shape (n, 4)
-        The boxes with their sides moved, inside the frame; a box too small to measure (under
+        The boxes with their sides moved, inside the frame (and the picture); a box too small to measure (under
         8 pixels wide or high) is returned as it is.
     """
     out = np.rint(as_boxes(boxes, "boxes")).astype(np.int64)
     h, w = image.shape[:2]
+    a0, a1 = (0, w) if area is None else (max(0, int(area[0])), min(w, int(area[2])))
     for box in out:
         x1, y1, x2, y2 = (int(v) for v in box)
         bw, bh = x2 - x1, y2 - y1
         top, bottom = max(0, y1 + int(fit.rows[0] * bh)), min(h, y1 + int(round(fit.rows[1] * bh)))
-        if bw < 8 or bh < 8 or bottom - top < 2 or x1 < 0 or x2 > w:
+        if bw < 8 or bh < 8 or bottom - top < 2 or x1 < a0 or x2 > a1:
             continue
         reach, sigma = fit.reach * bw, fit.prior * bw
         # left: the box's first column; right: its last (x2 exclusive)
-        lo, hi = max(0, int(x1 - reach)), min(w, int(x1 + reach) + 1)
-        left = _side(_column_strength(image, top, bottom, lo, hi), lo, x1, sigma, fit.outer, -1, lo == 0)
-        lo, hi = max(0, int(x2 - 1 - reach)), min(w, int(x2 - 1 + reach) + 1)
-        right = _side(_column_strength(image, top, bottom, lo, hi), lo, x2 - 1, sigma, fit.outer, +1, hi == w) + 1
+        lo, hi = max(a0, int(x1 - reach)), min(a1, int(x1 + reach) + 1)
+        left = _side(_column_strength(image, top, bottom, lo, hi, a0, a1), lo, x1, sigma, fit.outer, -1, lo == a0)
+        lo, hi = max(a0, int(x2 - 1 - reach)), min(a1, int(x2 - 1 + reach) + 1)
+        right = _side(_column_strength(image, top, bottom, lo, hi, a0, a1), lo, x2 - 1, sigma, fit.outer, +1, hi == a1) + 1
         if right - left >= 2:
             box[0], box[2] = left, right
     return out
