@@ -382,7 +382,13 @@ class Detector:
             yield release()
 
     def steps(
-        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int, *, timeline: Timeline | None = None
+        self,
+        frames: Iterable[np.ndarray],
+        tracker: Tracker,
+        workers: int,
+        *,
+        timeline: Timeline | None = None,
+        before: Iterable[tuple[int, np.ndarray]] = (),
     ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
         """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
 
@@ -390,7 +396,9 @@ class Detector:
         the tracker's back-fill after the frame (boxes for earlier frames of newly confirmed
         tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
         (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
-        A ``timeline`` is filled as :meth:`track_frames` says.
+        A ``timeline`` is filled as :meth:`track_frames` says. ``before`` gives the frames just
+        before these as ``(index, frame)`` pairs (a chunk continuing a tracker's state): the
+        back-fill can fall on them, and its boxes are fitted in them (:meth:`fit_boxes`).
         """
         clock = timing(timeline)
         t = clock.now()
@@ -400,7 +408,7 @@ class Detector:
         clock.lap("footage", t)
         search = clock.timed("search", det.windows)
         # the frames the back-fill can fall on: it reaches back min_hits - 1 frames
-        recent: deque = deque(maxlen=max(1, self.config.tracker.min_hits))
+        recent: deque = deque(before, maxlen=max(1, self.config.tracker.min_hits))
 
         def advance(frame, future):
             t = clock.now()
