@@ -144,6 +144,26 @@ def test_match_moves_box_by_moving_average_and_confirms():
     assert t.int_box().dtype == np.int64
 
 
+def test_measured_blob_boxes_are_matched_and_averaged_into_the_tracks():
+    """``measure`` sees each frame's blob boxes ((n, 4)) before association; the tracks
+    average what it returns, and their back-fill holds it too."""
+    cfg = TrackerConfig(decay=0.0, threshold=0.5, min_hits=2, smoothing=0.5)
+    seen = []
+
+    def measure(boxes):
+        seen.append(boxes.copy())
+        return boxes + [-8, 0, 8, 0]  # one cell wider each side
+
+    tr = Tracker(cfg)
+    tr.update(Detections(np.array([[64, 64, 192, 160]]), score=[1.5]), SHAPE, measure)
+    found = tr.update(Detections(np.array([[80, 64, 208, 160]]), score=[1.5]), SHAPE, measure)
+    assert [b.tolist() for b in seen] == [[[64, 64, 192, 160]], [[80, 64, 208, 160]]]
+    assert found.xyxy.tolist() == [[64, 64, 208, 160]]  # 0.5 * [56, 64, 200, 160] + 0.5 * [72, 64, 216, 160]
+    assert tr.backfill.xyxy.tolist() == [[56, 64, 200, 160]] and tr.backfill.frame.tolist() == [0]
+    tr.update(Detections.empty(), SHAPE, measure)  # no blob: measure is not called
+    assert len(seen) == 2
+
+
 def test_score_weights_heat_and_score_gain():
     one = [[64, 64, 192, 160]]
     (t,) = update(Tracker(TrackerConfig(decay=0, threshold=0, min_hits=1)), one, [2.0], SHAPE)

@@ -287,7 +287,7 @@ class Detector:
             boxes, peaks = split_blobs(boxes, peaks, win, weights, iou=cfg.cluster_iou)
             boxes = vote_boxes(boxes, win, weights, iou=cfg.cluster_iou, fraction=cfg.box_vote)
         picture = self._picture(image)
-        return self.fit_boxes(image, self._inside(Detections(boxes, score=peaks), picture), area=None if picture is None else picture.area)
+        return self.fit_boxes(image, self._inside(Detections(boxes, score=peaks), picture), area=self._area(picture))
 
     def new_tracker(self) -> Tracker:
         """A fresh :class:`~vehicle_detection.tracker.Tracker` with this detector's settings."""
@@ -302,37 +302,38 @@ class Detector:
         """
         around = self._scheduled_around(tracker, tracker.state.frame_index)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
-        return self.fit_boxes(frame, self.track_step(frame.shape, wins, tracker))
+        return self.track_step(frame.shape, wins, tracker, frame)
 
-    def track_step(self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker) -> Detections:
-        """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`): the tracks'
-        boxes as the tracker keeps them, before :meth:`fit_boxes`."""
-        return self._inside(tracker.update(self._tracker_input(windows), frame_shape), self._overlays)
+    def track_step(
+        self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker, frame: np.ndarray | None = None
+    ) -> Detections:
+        """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`).
+
+        With ``frame`` (the frame the windows were found in), each blob's box has its sides
+        fitted to the frame (:meth:`fit_boxes`) before the tracker matches it and averages it
+        into its track, so the fitted boxes are smoothed along the track like any other.
+        """
+        measure = None
+        if frame is not None and self.config.side_fit is not None:
+            def measure(boxes):
+                return fit_sides(frame, np.rint(boxes), self.config.side_fit, area=self._area())
+        return self._inside(tracker.update(self._tracker_input(windows), frame_shape, measure), self._overlays)
+
+    def _area(self, picture: Overlays | None = None) -> tuple[int, int, int, int] | None:
+        """The picture inside black bars (``picture``'s, else the footage's), None for the whole frame."""
+        picture = picture if picture is not None else self._overlays
+        return None if picture is None else picture.area
 
     def fit_boxes(self, frame: np.ndarray, found: Detections, *, area: tuple[int, int, int, int] | None = None) -> Detections:
         """``found`` with each box's sides fitted to its vehicle's edges in ``frame``
         (:func:`~vehicle_detection.refine.fit_sides`, with ``config.side_fit``; unchanged when
-        that is None). Every box this detector reports has been through it; the tracker keeps
-        its own boxes, so the fit never feeds back into the tracks. ``area`` is the picture
-        inside black bars (default: the footage's, :meth:`with_overlays`, else the whole frame)."""
+        that is None). ``area`` is the picture inside black bars (default: the footage's,
+        :meth:`with_overlays`, else the whole frame). :meth:`detect_image` reports boxes fitted
+        so; in a video the tracker fits each blob before smoothing (:meth:`track_step`)."""
         fit = self.config.side_fit
         if fit is None or not len(found):
             return found
-        if area is None and self._overlays is not None:
-            area = self._overlays.area
-        return found.replace(xyxy=fit_sides(frame, found.xyxy, fit, area=area))
-
-    def _fit_past(self, found: Detections, frames: dict[int, np.ndarray]) -> Detections:
-        """:meth:`fit_boxes` for rows of several frames (the tracker's back-fill), each in its own
-        frame of ``frames`` (``{index: frame}``); rows of other frames stay as they are."""
-        if self.config.side_fit is None or not len(found):
-            return found
-        xyxy = found.xyxy.copy()
-        for index, frame in frames.items():
-            rows = found.frame == index
-            if rows.any():
-                xyxy[rows] = fit_sides(frame, xyxy[rows], self.config.side_fit, area=None if self._overlays is None else self._overlays.area)
-        return found.replace(xyxy=xyxy)
+        return found.replace(xyxy=fit_sides(frame, found.xyxy, fit, area=area if area is not None else self._area()))
 
     def track_frames(
         self,
@@ -388,7 +389,6 @@ class Detector:
         workers: int,
         *,
         timeline: Timeline | None = None,
-        before: Iterable[tuple[int, np.ndarray]] = (),
     ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
         """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
 
@@ -396,9 +396,7 @@ class Detector:
         the tracker's back-fill after the frame (boxes for earlier frames of newly confirmed
         tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
         (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
-        A ``timeline`` is filled as :meth:`track_frames` says. ``before`` gives the frames just
-        before these as ``(index, frame)`` pairs (a chunk continuing a tracker's state): the
-        back-fill can fall on them, and its boxes are fitted in them (:meth:`fit_boxes`).
+        A ``timeline`` is filled as :meth:`track_frames` says.
         """
         clock = timing(timeline)
         t = clock.now()
@@ -407,18 +405,14 @@ class Detector:
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
         clock.lap("footage", t)
         search = clock.timed("search", det.windows)
-        # the frames the back-fill can fall on: it reaches back min_hits - 1 frames
-        recent: deque = deque(before, maxlen=max(1, self.config.tracker.min_hits))
 
         def advance(frame, future):
             t = clock.now()
             windows = future.result()
             t = clock.lap("search_wait", t)
             index = tracker.state.frame_index
-            recent.append((index, frame))
-            found = det.fit_boxes(frame, det.track_step(frame.shape, windows, tracker))
+            found = det.track_step(frame.shape, windows, tracker, frame)
             backfill = det._inside(tracker.backfill, det._overlays)
-            backfill = det._fit_past(backfill, dict(recent))
             clock.lap("track", t)
             return frame, index, found, backfill
 

@@ -21,6 +21,7 @@ The whole state lives in a :class:`TrackerState`, so a video can be processed in
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -453,7 +454,9 @@ class Tracker:
         """
         return self._backfill
 
-    def update(self, detections: Detections, frame_shape: tuple[int, ...]) -> Detections:
+    def update(
+        self, detections: Detections, frame_shape: tuple[int, ...], measure: Callable[[np.ndarray], np.ndarray] | None = None
+    ) -> Detections:
         """Process one frame's detections.
 
         Parameters
@@ -465,6 +468,11 @@ class Tracker:
             frame without detections.
         frame_shape : (H, W) or (H, W, C)
             Shape of the frame; the same for every call (``frame.shape`` will do).
+        measure : callable, optional
+            Maps the frame's blob boxes ``(n, 4)`` (whole pixels) to boxes measured better (e.g. from
+            the frame's pixels, :meth:`~vehicle_detection.detector.Detector.fit_boxes`), before
+            they are matched to the tracks and averaged into them; the tracker itself never
+            reads pixels.
 
         Returns
         -------
@@ -490,6 +498,8 @@ class Tracker:
                 "use a new Tracker (or reset()) for another video"
             )
         integrated, cand, peaks = self._heat_stage(detections, hw)
+        if measure is not None and len(cand):
+            cand = np.asarray(measure(cand), np.float64).reshape(-1, 4)
         kept, next_id = self._associate(cand, peaks)
 
         index = st.frame_index

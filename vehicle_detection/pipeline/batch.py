@@ -23,7 +23,6 @@ from a module that imports nothing heavy) before numba is loaded in it.
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import glob
 import itertools
@@ -156,15 +155,10 @@ def track_chunk(
     tracker = Tracker(detector.config.tracker, state)
     frames = read_frames(path)
     try:
-        # The frames just before the chunk, which its first frames' back-fill can fall on (and is
-        # fitted in); decoded anyway on the way to ``start``.
-        lag = max(0, detector.config.tracker.min_hits - 1)
-        before = collections.deque(zip(range(start), itertools.islice(frames, start)), maxlen=lag)
-        chunk = itertools.islice(frames, None if end is None else max(0, end - start))
         # The first chunk estimates the camera's horizon; the state carries it to the others.
         steps = [
             (index, found, backfill)
-            for _, index, found, backfill in detector.steps(chunk, tracker, workers or SEARCH_WORKERS, before=before)
+            for _, index, found, backfill in detector.steps(itertools.islice(frames, start, end), tracker, workers or SEARCH_WORKERS)
         ]
     finally:
         frames.close()

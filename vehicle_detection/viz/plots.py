@@ -783,7 +783,7 @@ def track_frames(detector, frames, first: int, count: int = 6):
     records = []
     for index, frame in enumerate(itertools.islice(frames, first + count)):
         wins = detector.windows(frame)
-        found = detector.fit_boxes(frame, detector.track_step(frame.shape, wins, tracker))
+        found = detector.track_step(frame.shape, wins, tracker, frame)
         if index >= first:
             records.append((frame, index, wins, found, tracker.state.integrated.copy()))
     return records
