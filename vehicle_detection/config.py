@@ -42,6 +42,11 @@ class DetectorConfig:
         camera car's static parts (bonnet, windscreen mount) or burnt-in text, all found from a
         video's first frames (:mod:`~vehicle_detection.overlays`); single images are cut from
         their own bars. Footage without either is searched as before.
+    side_fit : SideFit or None
+        Move the boxes' left and right sides onto the vehicle's vertical edges in the frame
+        (:func:`~vehicle_detection.refine.fit_sides`): a single image's boxes, and in a video
+        each blob's box before the tracker matches it and averages it into its track; None
+        reports the boxes as the heat and the tracker give them.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)

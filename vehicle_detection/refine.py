@@ -13,8 +13,9 @@ vehicles in real frames; :meth:`BoxRegressor.refine` applies it. Refined boxes a
 the frame, so refinement never moves a box outside it.
 
 The regression learns the shape of the vehicles it was fitted on, and a camera it never saw has
-vehicles of other shapes in other places. :func:`fit_sides` then moves each final box's left and
-right sides onto the vehicle's own vertical edges, read off the image: the strongest column of
+vehicles of other shapes in other places. :func:`fit_sides` then moves each box's left and right
+sides (a single image's boxes; in a video, each blob's box before the tracker averages it into
+its track) onto the vehicle's own vertical edges, read off the image: the strongest column of
 horizontal gradient near each side, at the height of the vehicle's body, with a prior that the
 side is about right. It learns nothing, so it transfers to any camera.
 
