@@ -316,7 +316,7 @@ class Detector:
         measure = None
         if frame is not None and self.config.side_fit is not None:
             def measure(boxes):
-                return fit_sides(frame, np.rint(boxes), self.config.side_fit, area=self._area())
+                return fit_sides(frame, boxes, self.config.side_fit, area=self._area())
         return self._inside(tracker.update(self._tracker_input(windows), frame_shape, measure), self._overlays)
 
     def _area(self, picture: Overlays | None = None) -> tuple[int, int, int, int] | None:
@@ -383,12 +383,7 @@ class Detector:
             yield release()
 
     def steps(
-        self,
-        frames: Iterable[np.ndarray],
-        tracker: Tracker,
-        workers: int,
-        *,
-        timeline: Timeline | None = None,
+        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int, *, timeline: Timeline | None = None
     ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
         """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
 
