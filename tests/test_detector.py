@@ -347,3 +347,68 @@ def test_side_fit_setting_round_trips():
     assert DetectorConfig.library_0_1().side_fit is None
     with pytest.raises(ValueError, match="side_fit"):
         DetectorConfig(side_fit=(0.1, 0.07))
+
+
+def _two_shots():
+    """Ten frames of one shot (grey) with a car on the left, then ten of another (bright) with a
+    car on the right."""
+    out = []
+    for i in range(20):
+        f = np.full((720, 1280, 3), 90 if i < 10 else 200, np.uint8)
+        f[0, 0, 0] = i
+        out.append(f)
+
+    def windows(i):
+        x = 200 if i < 10 else 900
+        return [[x + dx, 420 + dy, x + 96 + dx, 516 + dy] for dx in (0, 8, 16) for dy in (0, 8)]
+
+    return out, windows
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_no_track_is_carried_across_a_cut_between_shots(workers):
+    from vehicle_detection.shots import ShotCuts
+
+    frames, windows = _two_shots()
+    tracker = TrackerConfig(threshold=2.0, min_hits=3)
+    det, plain = _Scripted(windows, tracker=tracker), _Scripted(windows, tracker=tracker)
+    assert det.config.shot_cuts == ShotCuts()
+    plain.config = plain.config.replace(shot_cuts=None)
+    got = Detections.concatenate(det.track(frames, workers=workers))
+    first, second = got.frame < 10, got.frame >= 10
+    assert set(got.frame.tolist()) == set(range(20))  # both cars reported from their first frame
+    assert not set(got.track_id[first].tolist()) & set(got.track_id[second].tolist())
+    assert (got.xyxy[second, 0] > 600).all()  # only the second shot's car after the cut
+    ref = Detections.concatenate(plain.track(frames, workers=workers))
+    carried = ref.frame >= 10
+    assert (ref.xyxy[carried, 0] < 600).any()  # as one shot, the first car's track coasts on past the cut
+
+
+def test_a_cut_at_a_chunk_border_is_found_from_the_state():
+    """Live steps, the tracker handed over (as between chunks) just before the cut."""
+    from vehicle_detection.tracker import Tracker
+
+    frames, windows = _two_shots()
+    det = _Scripted(windows, tracker=TrackerConfig(threshold=2.0, min_hits=3))
+    tracker = det.new_tracker()
+    for f in frames[:10]:
+        before = det.step(f, tracker)
+    assert len(before) == 1
+    tracker = Tracker(tracker.config, tracker.state)
+    after = det.step(frames[10], tracker)
+    assert len(after) == 0 and tracker.state.tracks and all(t.track_id > before.track_id[0] for t in tracker.state.tracks)
+
+
+def test_shot_cuts_setting_round_trips():
+    from vehicle_detection.shots import ShotCuts
+
+    cfg = DetectorConfig()
+    assert cfg.shot_cuts == ShotCuts() and DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    off = cfg.replace(shot_cuts=None)
+    assert DetectorConfig.from_dict(off.to_dict()) == off and off.to_dict()["shot_cuts"] is None
+    old = cfg.to_dict()
+    del old["shot_cuts"]  # files saved before it track a video as one shot
+    assert DetectorConfig.from_dict(old).shot_cuts is None
+    assert DetectorConfig.library_0_1().shot_cuts is None
+    with pytest.raises(ValueError, match="shot_cuts"):
+        DetectorConfig(shot_cuts={"threshold": 30.0})

@@ -355,6 +355,29 @@ def test_state_copy_is_deep():
     assert (snapshot(snap.tracks), snap.next_id, snap.frame_index) == before[1:]
 
 
+def test_cut_forgets_tracks_and_heat_and_ids_go_on():
+    tr = Tracker(TrackerConfig())
+    car = np.array([500, 420, 628, 516])
+    for _ in range(6):
+        out = update(tr, car_windows(car), np.ones(4), SHAPE)
+    (before,) = out
+    index, next_id = tr.state.frame_index, tr.state.next_id
+    tr.cut()
+    assert tr.state.tracks == [] and not tr.state.integrated.any()
+    assert (tr.state.frame_index, tr.state.next_id) == (index, next_id)
+    assert update(tr, [], [], SHAPE) == []  # nothing coasts across the cut
+    for _ in range(3):  # the same place after the cut: another vehicle, another id
+        out = update(tr, car_windows(car), np.ones(4), SHAPE)
+    assert [t.track_id for t in out] == [before.track_id + 1]
+
+
+def test_state_copy_keeps_the_shot_check_apart():
+    state = TrackerState(shot_thumbnail=np.ones((27, 48, 3), np.float32), shot_changes=(1.0, 2.0))
+    snap = state.copy()
+    state.shot_thumbnail[:] = 5
+    assert snap.shot_thumbnail.max() == 1 and snap.shot_changes == (1.0, 2.0)
+
+
 def test_frame_shape_change_raises_and_keeps_state():
     tr = Tracker(TrackerConfig())
     update(tr, car_windows([500, 420, 628, 516]), np.ones(4), (720, 1280))  # (H, W) == (H, W, 3)

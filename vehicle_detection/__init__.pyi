@@ -15,6 +15,7 @@ from .horizon import estimate_horizon, vanishing_row
 from .overlays import active_area, find_overlays, static_mask
 from .refine import SideFit, fit_sides
 from .search import SearchPlan, SearchScale
+from .shots import ShotCuts
 from .tracker import Tracker, TrackerConfig
 
 # Images, video, tables and their formats

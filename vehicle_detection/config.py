@@ -14,6 +14,7 @@ from typing import Any
 
 from .refine import SideFit
 from .search import SearchPlan, SearchScale
+from .shots import ShotCuts
 from .tracker import TrackerConfig
 
 __all__ = ["DetectorConfig"]
@@ -47,6 +48,11 @@ class DetectorConfig:
         (:func:`~vehicle_detection.refine.fit_sides`): a single image's boxes, and in a video
         each blob's box before the tracker matches it and averages it into its track; None
         reports the boxes as the heat and the tracker give them.
+    shot_cuts : ShotCuts or None
+        In a video, find the cuts between shots (:mod:`~vehicle_detection.shots`) and start
+        the tracker afresh at each (:meth:`~vehicle_detection.tracker.Tracker.cut`): no track,
+        and no heat, is carried from one shot into the next. None: the footage is taken as one
+        shot.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)
@@ -55,6 +61,7 @@ class DetectorConfig:
     auto_horizon: bool = True
     auto_overlays: bool = True
     side_fit: SideFit | None = field(default_factory=SideFit)
+    shot_cuts: ShotCuts | None = field(default_factory=ShotCuts)
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -70,6 +77,8 @@ class DetectorConfig:
                 raise ValueError(f"DetectorConfig.{name} must be True or False; got {getattr(self, name)!r}")
         if self.side_fit is not None and not isinstance(self.side_fit, SideFit):
             raise ValueError(f"DetectorConfig.side_fit must be a SideFit or None; got {type(self.side_fit).__name__}")
+        if self.shot_cuts is not None and not isinstance(self.shot_cuts, ShotCuts):
+            raise ValueError(f"DetectorConfig.shot_cuts must be a ShotCuts or None; got {type(self.shot_cuts).__name__}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -96,7 +105,8 @@ class DetectorConfig:
             decay=0.6, threshold=6.0, cell=8, min_hits=3, max_misses=5, smoothing=0.3, match_iou=0.2, min_size=(32, 32),
             aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
         )
-        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False, side_fit=None)
+        return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False, side_fit=None,
+                   shot_cuts=None)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""
@@ -130,6 +140,7 @@ class DetectorConfig:
             "auto_horizon": self.auto_horizon,
             "auto_overlays": self.auto_overlays,
             "side_fit": None if self.side_fit is None else self.side_fit.to_dict(),
+            "shot_cuts": None if self.shot_cuts is None else self.shot_cuts.to_dict(),
         }
 
     @classmethod
@@ -139,7 +150,8 @@ class DetectorConfig:
         Files saved before ``auto_horizon`` load with it False (their bands as they were
         searched); files saved before ``auto_overlays`` with it True (it changes nothing on
         footage without bars or static overlays, such as the project camera's); files saved
-        before ``side_fit`` with None (their boxes as they were reported).
+        before ``side_fit`` with None (their boxes as they were reported), and before
+        ``shot_cuts`` with None (their videos tracked as one shot).
 
         Raises
         ------
@@ -147,11 +159,13 @@ class DetectorConfig:
             If a key is missing or unknown, or a value is out of range.
         """
         keys = {"plan", "tracker", "image_threshold"}
-        if not isinstance(d, dict) or not keys <= set(d) <= keys | {"auto_horizon", "auto_overlays", "side_fit"}:
+        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts")
+        if not isinstance(d, dict) or not keys <= set(d) <= keys | set(optional):
             raise ValueError(
-                "expected an object with 'plan', 'tracker', 'image_threshold' and optionally 'auto_horizon', 'auto_overlays', 'side_fit'"
+                "expected an object with 'plan', 'tracker', 'image_threshold' and optionally "
+                + ", ".join(f"'{k}'" for k in optional)
             )
-        side_fit = d.get("side_fit")
+        side_fit, shot_cuts = d.get("side_fit"), d.get("shot_cuts")
         return cls(
             plan=SearchPlan.from_dict(d["plan"]),
             tracker=TrackerConfig.from_dict(d["tracker"]),
@@ -159,4 +173,5 @@ class DetectorConfig:
             auto_horizon=d.get("auto_horizon", False),
             auto_overlays=d.get("auto_overlays", True),
             side_fit=None if side_fit is None else SideFit.from_dict(side_fit),
+            shot_cuts=None if shot_cuts is None else ShotCuts.from_dict(shot_cuts),
         )

@@ -39,6 +39,7 @@ from .io.timeline import Timeline, timing
 from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
 from .refine import fit_sides
 from .search import search
+from .shots import next_shot
 from .tracker import Tracker, window_heat
 
 __all__ = ["Detector"]
@@ -298,26 +299,53 @@ class Detector:
 
         Live, nothing is seen ahead, so the horizon is not estimated: the plan as written, or
         :meth:`with_horizon`; each frame is cut from its own black bars, and nothing is masked
-        unless :meth:`with_overlays` says.
+        unless :meth:`with_overlays` says. A frame that starts a new shot is searched whole,
+        and the tracker starts afresh there (:meth:`shot_cut`).
         """
-        around = self._scheduled_around(tracker, tracker.state.frame_index)
+        cut = self.shot_cut(frame, tracker)
+        around = None if cut else self._scheduled_around(tracker, tracker.state.frame_index)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
-        return self.track_step(frame.shape, wins, tracker, frame)
+        return self.track_step(frame.shape, wins, tracker, frame, cut=cut)
 
     def track_step(
-        self, frame_shape: tuple[int, ...], windows: Detections, tracker: Tracker, frame: np.ndarray | None = None
+        self,
+        frame_shape: tuple[int, ...],
+        windows: Detections,
+        tracker: Tracker,
+        frame: np.ndarray | None = None,
+        *,
+        cut: bool | None = None,
     ) -> Detections:
         """Advance ``tracker`` by one frame's hot windows (from :meth:`windows`).
 
         With ``frame`` (the frame the windows were found in), each blob's box has its sides
         fitted to the frame (:meth:`fit_boxes`) before the tracker matches it and averages it
-        into its track, so the fitted boxes are smoothed along the track like any other.
+        into its track, so the fitted boxes are smoothed along the track like any other; and,
+        with ``config.shot_cuts``, when the frame starts a new shot (:meth:`shot_cut`) the
+        tracker forgets the last shot's tracks and heat first (:meth:`Tracker.cut`). ``cut``
+        says it instead when the caller has already checked the frame.
         """
+        if cut is None:
+            cut = frame is not None and self.shot_cut(frame, tracker)
+        if cut:
+            tracker.cut()
         measure = None
         if frame is not None and self.config.side_fit is not None:
             def measure(boxes):
                 return fit_sides(frame, boxes, self.config.side_fit, area=self._area())
         return self._inside(tracker.update(self._tracker_input(windows), frame_shape, measure), self._overlays)
+
+    def shot_cut(self, frame: np.ndarray, tracker: Tracker) -> bool:
+        """Whether ``frame``, the next frame of ``tracker``'s video, starts a new shot
+        (:func:`~vehicle_detection.shots.next_shot` with ``config.shot_cuts``; always False
+        when that is None). Each frame must be checked once, in order: the tracker's state
+        keeps the last frame's thumbnail."""
+        rule = self.config.shot_cuts
+        if rule is None:
+            return False
+        st = tracker.state
+        cut, st.shot_thumbnail, st.shot_changes = next_shot(frame, st.shot_thumbnail, st.shot_changes, rule)
+        return cut
 
     def _area(self, picture: Overlays | None = None) -> tuple[int, int, int, int] | None:
         """The picture inside black bars (``picture``'s, else the footage's), None for the whole frame."""
@@ -401,12 +429,12 @@ class Detector:
         clock.lap("footage", t)
         search = clock.timed("search", det.windows)
 
-        def advance(frame, future):
+        def advance(frame, future, cut):
             t = clock.now()
             windows = future.result()
             t = clock.lap("search_wait", t)
             index = tracker.state.frame_index
-            found = det.track_step(frame.shape, windows, tracker, frame)
+            found = det.track_step(frame.shape, windows, tracker, frame, cut=cut)
             backfill = det._inside(tracker.backfill, det._overlays)
             clock.lap("track", t)
             return frame, index, found, backfill
@@ -415,16 +443,17 @@ class Detector:
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 for frame in frames:
+                    cut = det.shot_cut(frame, tracker)  # checked now, so that a new shot is searched whole
                     # this frame's index: the frames advanced plus those still searched
-                    around = det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
+                    around = None if cut else det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
-                    pending.append((frame, pool.submit(search, *args)))
+                    pending.append((frame, pool.submit(search, *args), cut))
                     if len(pending) > workers:
                         yield advance(*pending.popleft())
                 while pending:
                     yield advance(*pending.popleft())
             finally:
-                for _, future in pending:
+                for _, future, _ in pending:
                     future.cancel()
 
     def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2) -> Iterator[Detections]:

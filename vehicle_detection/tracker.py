@@ -299,6 +299,12 @@ class TrackerState:
         later chunks like ``horizon``. Immutable, so copies share it.
     overlays_searched : bool
         Whether the detector has looked for them.
+    shot_thumbnail : ndarray of float32 or None
+        The thumbnail of the last frame the detector checked for a cut between shots
+        (:mod:`~vehicle_detection.shots`), kept so that the first frame of a later chunk is
+        checked against the last of the one before; None before the first frame.
+    shot_changes : tuple of float
+        The changes of the last frames checked (:func:`~vehicle_detection.shots.next_shot`).
     """
 
     integrated: np.ndarray | None = None
@@ -310,6 +316,8 @@ class TrackerState:
     horizon_searched: bool = False
     overlays: Overlays | None = None
     overlays_searched: bool = False
+    shot_thumbnail: np.ndarray | None = None
+    shot_changes: tuple[float, ...] = ()
 
     def copy(self) -> TrackerState:
         """A deep copy: updating either afterwards leaves the other unchanged."""
@@ -323,6 +331,8 @@ class TrackerState:
             horizon_searched=self.horizon_searched,
             overlays=self.overlays,
             overlays_searched=self.overlays_searched,
+            shot_thumbnail=None if self.shot_thumbnail is None else self.shot_thumbnail.copy(),
+            shot_changes=tuple(self.shot_changes),
         )
 
 
@@ -445,6 +455,15 @@ class Tracker:
     def tracks(self) -> list[Track]:
         """Copies of the confirmed live tracks after the last update, in increasing ``track_id``."""
         return [t.copy() for t in self._state.tracks if t.confirmed]
+
+    def cut(self) -> None:
+        """The footage cut to another shot (:mod:`~vehicle_detection.shots`): forget the heat
+        and the live tracks, confirmed or not. Track ids go on from :attr:`TrackerState.next_id`,
+        and the frame counter and the footage's measurements are kept."""
+        st = self._state
+        if st.integrated is not None:
+            st.integrated = np.zeros_like(st.integrated)
+        st.tracks = []
 
     @property
     def backfill(self) -> Detections:

@@ -1,0 +1,133 @@
+"""Cuts between shots: where edited footage jumps to another scene between two frames.
+
+Dashcam compilations, news clips and replays cut from one shot to another. A vehicle tracked
+before a cut is not the one at its place after it, so at a cut the tracker forgets its heat and
+its tracks (:meth:`~vehicle_detection.tracker.Tracker.cut`); track ids go on.
+
+A cut is found from consecutive frames' thumbnails (:data:`THUMBNAIL` pixels, each the mean of
+a block of the frame, so the size of the frame does not matter): their mean absolute difference,
+in levels of 0 to 255, is a frame's *change*. A frame is a cut when its change exceeds
+:attr:`ShotCuts.threshold` and :attr:`ShotCuts.ratio` times the median change of the
+:attr:`ShotCuts.memory` frames before it: a single-frame jump, not the steady large changes of
+fast or low-frame-rate footage.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+__all__ = ["THUMBNAIL", "ShotCuts", "frame_change", "next_shot", "thumbnail"]
+
+THUMBNAIL = (48, 27)
+"""(width, height) of the thumbnails frames are compared by."""
+
+
+@dataclass(frozen=True)
+class ShotCuts:
+    """When a frame starts a new shot.
+
+    Parameters
+    ----------
+    threshold : float, default 30.0
+        Least change (mean absolute difference of the thumbnails, levels of 0 to 255) of a cut,
+        > 0.
+    ratio : float, default 3.0
+        A cut's change is also more than this many times the median change of the frames
+        before it, >= 1.
+    memory : int, default 8
+        How many of the last frames' changes that median is taken over, >= 1.
+
+    Raises
+    ------
+    ValueError
+        If a value is out of range; the message names the field.
+    """
+
+    threshold: float = 30.0
+    ratio: float = 3.0
+    memory: int = 8
+
+    def __post_init__(self) -> None:
+        for name, low, closed in (("threshold", 0.0, False), ("ratio", 1.0, True)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not (v >= low if closed else v > low):
+                raise ValueError(f"ShotCuts.{name} must be a finite number {'>=' if closed else '>'} {low:g}; got {v!r}")
+            object.__setattr__(self, name, float(v))
+        m = self.memory
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+            raise ValueError(f"ShotCuts.memory must be an integer >= 1; got {m!r}")
+        object.__setattr__(self, "memory", int(m))
+
+    def to_dict(self) -> dict:
+        """Plain JSON data."""
+        return {"threshold": self.threshold, "ratio": self.ratio, "memory": self.memory}
+
+    @classmethod
+    def from_dict(cls, d: Any) -> ShotCuts:
+        """The inverse of :meth:`to_dict`.
+
+        Raises
+        ------
+        ValueError
+            If a key is missing or unknown, or a value is out of range.
+        """
+        keys = {"threshold", "ratio", "memory"}
+        if not isinstance(d, dict) or set(d) != keys:
+            raise ValueError(f"expected an object with exactly the keys {sorted(keys)}")
+        return cls(**d)
+
+
+def thumbnail(frame: np.ndarray) -> np.ndarray:
+    """The frame's thumbnail: block means, float32 ``(27, 48, 3)`` (:data:`THUMBNAIL`).
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+        An RGB frame.
+    """
+    return cv2.resize(frame, THUMBNAIL, interpolation=cv2.INTER_AREA).astype(np.float32)
+
+
+def frame_change(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute difference of two thumbnails (:func:`thumbnail`), in levels of 0 to 255."""
+    return float(np.abs(a - b).mean())
+
+
+def next_shot(
+    frame: np.ndarray, previous: np.ndarray | None, changes: tuple[float, ...], rule: ShotCuts
+) -> tuple[bool, np.ndarray, tuple[float, ...]]:
+    """Whether ``frame`` starts a new shot, given the frame before it.
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+        The frame.
+    previous : ndarray or None
+        The thumbnail of the frame before it (None: this is the first frame; no cut).
+    changes : tuple of float
+        The changes of the frames before it, oldest first (at most ``rule.memory``).
+    rule : ShotCuts
+
+    Returns
+    -------
+    cut : bool
+        Whether the frame is a cut.
+    thumb : ndarray
+        The frame's thumbnail (the next call's ``previous``).
+    changes : tuple of float
+        The next call's ``changes``: this frame's change added, the last ``rule.memory`` kept.
+        A cut's change is kept too, so that footage changing this much every frame (a time
+        lapse) is not cut at every frame.
+    """
+    thumb = thumbnail(frame)
+    if previous is None or previous.shape != thumb.shape:
+        return False, thumb, ()
+    change = frame_change(previous, thumb)
+    typical = float(np.median(changes)) if changes else 0.0
+    cut = change > rule.threshold and change > rule.ratio * typical
+    return cut, thumb, (tuple(changes) + (change,))[-rule.memory :]
