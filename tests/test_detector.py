@@ -231,6 +231,24 @@ def test_cli_reports_the_bars(tmp_path, capsys, clip_a_frames):
     assert not any(line.startswith(("static overlay:", "horizon:")) for line in out)
 
 
+def test_cli_reports_the_cuts_between_shots(tmp_path, capsys, clip_a_frames, test_frames):
+    """Twelve frames of clip A, then another road (a test image, held): one cut, and no track on both sides of it."""
+    from vehicle_detection.cli import main
+    from vehicle_detection.io.tables import read_boxes_csv
+    from vehicle_detection.io.video import VideoWriter
+
+    video = tmp_path / "two_shots.mp4"
+    with VideoWriter(video, 25, (1280, 720)) as writer:
+        for frame in clip_a_frames[:12] + [test_frames[0]] * 8:
+            writer.write(frame)
+    assert main(["detect", str(video), "--no-progress", "--boxes", str(tmp_path / "b.csv"), "--no-video"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "1 cut between shots (frame 12): tracks started afresh there" in out
+    found = read_boxes_csv(tmp_path / "b.csv")
+    before, after = set(found.track_id[found.frame < 12].tolist()), set(found.track_id[found.frame >= 12].tolist())
+    assert before and after and not before & after
+
+
 # --- one box per car, of any size ------------------------------------------------------------
 
 

@@ -305,6 +305,8 @@ class TrackerState:
         checked against the last of the one before; None before the first frame.
     shot_changes : tuple of float
         The changes of the last frames checked (:func:`~vehicle_detection.shots.next_shot`).
+    cuts : tuple of int
+        The frames at which the tracker started afresh (:meth:`Tracker.cut`), in order.
     """
 
     integrated: np.ndarray | None = None
@@ -318,6 +320,7 @@ class TrackerState:
     overlays_searched: bool = False
     shot_thumbnail: np.ndarray | None = None
     shot_changes: tuple[float, ...] = ()
+    cuts: tuple[int, ...] = ()
 
     def copy(self) -> TrackerState:
         """A deep copy: updating either afterwards leaves the other unchanged."""
@@ -333,6 +336,7 @@ class TrackerState:
             overlays_searched=self.overlays_searched,
             shot_thumbnail=None if self.shot_thumbnail is None else self.shot_thumbnail.copy(),
             shot_changes=tuple(self.shot_changes),
+            cuts=tuple(self.cuts),
         )
 
 
@@ -459,8 +463,10 @@ class Tracker:
     def cut(self) -> None:
         """The footage cut to another shot (:mod:`~vehicle_detection.shots`): forget the heat
         and the live tracks, confirmed or not. Track ids go on from :attr:`TrackerState.next_id`,
-        and the frame counter and the footage's measurements are kept."""
+        and the frame counter and the footage's measurements are kept; the next frame's index
+        is added to :attr:`TrackerState.cuts`."""
         st = self._state
+        st.cuts = (*st.cuts, st.frame_index)
         if st.integrated is not None:
             st.integrated = np.zeros_like(st.integrated)
         st.tracks = []

@@ -474,13 +474,17 @@ def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: O
 
 
 def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
-    """What the run measured of the footage: its black bars and overlays, and its horizon."""
+    """What the run measured of the footage: its black bars and overlays, its horizon, and its cuts between shots."""
     state = tracker.state
     notes = list(state.overlays.describe()) if state.overlays is not None else []
     if state.horizon is not None:
         cropped = state.overlays is not None and state.overlays.cropped
         notes.append(f"horizon: {state.horizon:.3f} of the {'picture' if cropped else 'frame'} height, estimated from "
                      f"the video (the plan's {detector.config.plan.reference_horizon:.3f}); search bands moved accordingly")
+    if state.cuts:
+        shown = ", ".join(map(str, state.cuts[:8])) + (", ..." if len(state.cuts) > 8 else "")
+        notes.append(f"{plural(len(state.cuts), 'cut')} between shots ({'frame' if len(state.cuts) == 1 else 'frames'} {shown}): "
+                     "tracks started afresh there")
     return notes
 
 
