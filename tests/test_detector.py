@@ -178,6 +178,24 @@ def test_overlays_are_kept_in_the_tracker_state_across_chunks(clip_a_frames):
     assert moved._overlays is state.overlays and sum(1 for _ in rest) == 3  # not measured again
 
 
+def test_each_shot_is_measured_again(clip_a_frames, test_frames):
+    """Clip A inside pillarbox bars, then a cut to another road filling the frame: the second shot
+    is searched as a video of its own would be (its whole width), not inside the first's bars."""
+    import cv2
+
+    det = Detector()
+    first = [_pad(f, 0, 0, 160, 160) for f in clip_a_frames[:14]]
+    second = [cv2.resize(test_frames[0], (1600, 720), interpolation=cv2.INTER_AREA)] * 10
+    tracker = det.new_tracker()
+    found = Detections.concatenate(det.track(first + second, tracker))
+    assert tracker.state.cuts == (14,) and tracker.state.overlays.area == (0, 0, 1600, 720)
+    alone = Detections.concatenate(det.track(second))
+    assert len(alone) >= 10 and (alone.xyxy[:, 2] > 1440).any()  # a car beyond the first shot's picture
+    for i in range(len(second)):
+        assert _same_boxes(found.xyxy[found.frame == 14 + i], alone.xyxy[alone.frame == i], 0), i
+    assert (found.xyxy[found.frame < 14][:, [0, 2]] >= 160).all()  # the first shot inside its bars
+
+
 def test_windows_on_the_static_mask_are_dropped(test_frames):
     from vehicle_detection.detector import MASKED_SHARE
     from vehicle_detection.overlays import Overlays
@@ -243,7 +261,7 @@ def test_cli_reports_the_cuts_between_shots(tmp_path, capsys, clip_a_frames, tes
             writer.write(frame)
     assert main(["detect", str(video), "--no-progress", "--boxes", str(tmp_path / "b.csv"), "--no-video"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert "1 cut between shots (frame 12): tracks started afresh there" in out
+    assert "1 cut between shots (frame 12): tracks started afresh and the footage measured again there" in out
     found = read_boxes_csv(tmp_path / "b.csv")
     before, after = set(found.track_id[found.frame < 12].tolist()), set(found.track_id[found.frame >= 12].tolist())
     assert before and after and not before & after

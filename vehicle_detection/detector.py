@@ -40,7 +40,7 @@ from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_
 from .refine import fit_sides
 from .search import search
 from .shots import next_shot
-from .tracker import Tracker, window_heat
+from .tracker import Tracker, TrackerState, window_heat
 
 __all__ = ["Detector"]
 
@@ -151,26 +151,38 @@ class Detector:
           :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
 
         ``workers`` frames are measured at once (threads); the result is the same.
+        :meth:`steps` measures each new shot again (:meth:`shot_cut`).
         """
         overlays, horizon = self.config.auto_overlays, self.estimates_horizon
         if not (overlays or horizon):
             return self, frames
         state = tracker.state
-        first: list[np.ndarray] = []
         if (overlays and not state.overlays_searched) or (horizon and not state.horizon_searched):
             first = list(itertools.islice(frames, HORIZON_FRAMES))
             frames = itertools.chain(first, frames)
-        if overlays and not state.overlays_searched:
+            self._measure(first, state, workers)
+        return self._for_state(state), frames
+
+    def _measure(self, first: list, state: TrackerState, workers: int, *, new_shot: bool = False) -> None:
+        """Measure what :meth:`for_footage` says on ``first``, the first frames of the footage or
+        (``new_shot``) of a new shot, into ``state``. A new shot whose horizon cannot be estimated
+        keeps the last shot's (the same camera, as likely as not)."""
+        overlays, horizon = self.config.auto_overlays, self.estimates_horizon
+        if overlays and (new_shot or not state.overlays_searched):
             state.overlays = _footage_overlays(first)
             state.overlays_searched = True
-        if horizon and not state.horizon_searched:
+        if horizon and (new_shot or not state.horizon_searched):
             cut = state.overlays if overlays else None
             pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
             estimate = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers)
-            state.horizon = self._moved_to(estimate)
+            if estimate is not None or not new_shot:
+                state.horizon = self._moved_to(estimate)
             state.horizon_searched = True
+
+    def _for_state(self, state: TrackerState) -> Detector:
+        """This detector searching as the footage measured in ``state`` says."""
         det = self.with_horizon(state.horizon)
-        return (det.with_overlays(state.overlays) if overlays else det), frames
+        return det.with_overlays(state.overlays) if self.config.auto_overlays else det
 
     def windows(self, frame: np.ndarray, around: np.ndarray | None = None) -> Detections:
         """Windows of one RGB ``uint8`` frame whose margin exceeds the plan's threshold.
@@ -427,9 +439,9 @@ class Detector:
         t = clock.lap("warmup", t)
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
         clock.lap("footage", t)
-        search = clock.timed("search", det.windows)
+        remeasure = self.config.auto_overlays or self.estimates_horizon
 
-        def advance(frame, future, cut):
+        def advance(frame, future, cut, det):
             t = clock.now()
             windows = future.result()
             t = clock.lap("search_wait", t)
@@ -440,21 +452,29 @@ class Detector:
             return frame, index, found, backfill
 
         pending: deque = deque()
+        ahead: deque = deque()  # frames read to measure a new shot, not yet searched
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
-                for frame in frames:
-                    cut = det.shot_cut(frame, tracker)  # checked now, so that a new shot is searched whole
+                while (frame := ahead.popleft() if ahead else next(frames, None)) is not None:
+                    cut = self.shot_cut(frame, tracker)  # checked now, so that a new shot is searched whole
+                    if cut and remeasure:  # a new shot: its bars, overlays and horizon measured again
+                        t = clock.now()
+                        ahead.extend(itertools.islice(frames, max(0, HORIZON_FRAMES - 1 - len(ahead))))
+                        self._measure([frame, *itertools.islice(ahead, HORIZON_FRAMES - 1)], tracker.state, workers,
+                                      new_shot=True)
+                        det = self._for_state(tracker.state)
+                        clock.lap("footage", t)
                     # this frame's index: the frames advanced plus those still searched
                     around = None if cut else det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
-                    pending.append((frame, pool.submit(search, *args), cut))
+                    pending.append((frame, pool.submit(clock.timed("search", det.windows), *args), cut, det))
                     if len(pending) > workers:
                         yield advance(*pending.popleft())
                 while pending:
                     yield advance(*pending.popleft())
             finally:
-                for _, future, _ in pending:
-                    future.cancel()
+                for entry in pending:
+                    entry[1].cancel()
 
     def track(self, frames: Iterable[np.ndarray], tracker: Tracker | None = None, *, workers: int = 2) -> Iterator[Detections]:
         """Detect and follow vehicles through a sequence of RGB ``uint8`` frames.

@@ -481,10 +481,11 @@ def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
         cropped = state.overlays is not None and state.overlays.cropped
         notes.append(f"horizon: {state.horizon:.3f} of the {'picture' if cropped else 'frame'} height, estimated from "
                      f"the video (the plan's {detector.config.plan.reference_horizon:.3f}); search bands moved accordingly")
-    if state.cuts:
+    if state.cuts:  # each shot is measured again: the lines above are the last shot's
         shown = ", ".join(map(str, state.cuts[:8])) + (", ..." if len(state.cuts) > 8 else "")
+        notes = [f"last shot: {note}" for note in notes]
         notes.append(f"{plural(len(state.cuts), 'cut')} between shots ({'frame' if len(state.cuts) == 1 else 'frames'} {shown}): "
-                     "tracks started afresh there")
+                     "tracks started afresh and the footage measured again there")
     return notes
 
 
