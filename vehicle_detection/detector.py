@@ -393,7 +393,9 @@ class Detector:
         single frame.
 
         With :attr:`estimates_horizon`, the search bands follow the horizon estimated from the
-        first frames (:meth:`for_footage`).
+        first frames (:meth:`for_footage`). Where the footage cuts to another shot
+        (:meth:`shot_cut`), the tracker starts afresh and the new shot is measured again (bars,
+        overlays, horizon) from its first frames.
 
         With a search schedule (``plan.full_search_every > 1``), the frames between full
         searches are searched around the tracks live when the frame is submitted (the tracker
