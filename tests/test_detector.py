@@ -370,19 +370,25 @@ def test_tracked_boxes_have_their_sides_fitted_before_smoothing():
     assert got.xyxy[:, [1, 3]].tolist() == ref.xyxy[:, [1, 3]].tolist()  # top and bottom as the heat gives them
 
 
-def test_side_fit_setting_round_trips():
-    from vehicle_detection.refine import SideFit
+@pytest.mark.parametrize("name, kind, bad", [("side_fit", "refine.SideFit", (0.1, 0.07)),
+                                             ("shot_cuts", "shots.ShotCuts", {"threshold": 30.0})])
+def test_optional_settings_round_trip_and_older_files_load_without_them(name, kind, bad):
+    """Files saved before ``side_fit`` report their boxes as they did; before ``shot_cuts``,
+    they track a video as one shot."""
+    import importlib
 
+    module, cls = kind.split(".")
+    default = getattr(importlib.import_module(f"vehicle_detection.{module}"), cls)()
     cfg = DetectorConfig()
-    assert cfg.side_fit == SideFit() and DetectorConfig.from_dict(cfg.to_dict()) == cfg
-    off = cfg.replace(side_fit=None)
-    assert DetectorConfig.from_dict(off.to_dict()) == off and off.to_dict()["side_fit"] is None
+    assert getattr(cfg, name) == default and DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    off = cfg.replace(**{name: None})
+    assert DetectorConfig.from_dict(off.to_dict()) == off and off.to_dict()[name] is None
     old = cfg.to_dict()
-    del old["side_fit"]  # files saved before it report their boxes as they did
-    assert DetectorConfig.from_dict(old).side_fit is None
-    assert DetectorConfig.library_0_1().side_fit is None
-    with pytest.raises(ValueError, match="side_fit"):
-        DetectorConfig(side_fit=(0.1, 0.07))
+    del old[name]
+    assert getattr(DetectorConfig.from_dict(old), name) is None
+    assert getattr(DetectorConfig.library_0_1(), name) is None
+    with pytest.raises(ValueError, match=name):
+        DetectorConfig(**{name: bad})
 
 
 def _two_shots():
@@ -433,18 +439,3 @@ def test_a_cut_at_a_chunk_border_is_found_from_the_state():
     tracker = Tracker(tracker.config, tracker.state)
     after = det.step(frames[10], tracker)
     assert len(after) == 0 and tracker.state.tracks and all(t.track_id > before.track_id[0] for t in tracker.state.tracks)
-
-
-def test_shot_cuts_setting_round_trips():
-    from vehicle_detection.shots import ShotCuts
-
-    cfg = DetectorConfig()
-    assert cfg.shot_cuts == ShotCuts() and DetectorConfig.from_dict(cfg.to_dict()) == cfg
-    off = cfg.replace(shot_cuts=None)
-    assert DetectorConfig.from_dict(off.to_dict()) == off and off.to_dict()["shot_cuts"] is None
-    old = cfg.to_dict()
-    del old["shot_cuts"]  # files saved before it track a video as one shot
-    assert DetectorConfig.from_dict(old).shot_cuts is None
-    assert DetectorConfig.library_0_1().shot_cuts is None
-    with pytest.raises(ValueError, match="shot_cuts"):
-        DetectorConfig(shot_cuts={"threshold": 30.0})
