@@ -16,7 +16,9 @@ the embedded model:
 * ``side_fit=none``: the boxes reported as the heat and the tracker give them, their sides not
   fitted to the frame (:func:`vehicle_detection.refine.fit_sides`);
 * ``shot_cuts=none`` or ``shot_cuts=on``: the video tracked as one shot, or the tracker started
-  afresh at each cut between shots (:mod:`vehicle_detection.shots`, default settings).
+  afresh at each cut between shots (:mod:`vehicle_detection.shots`, default settings);
+* ``exposure=none`` or ``exposure=on``: dark footage searched as it is, or brightened
+  (:mod:`vehicle_detection.exposure`, default settings).
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
@@ -63,9 +65,10 @@ def model_with(variant: str, folder: Path) -> Path | None:
     side_fit = pairs.pop("side_fit", None)
     if side_fit not in (None, "none"):
         raise SystemExit(f"{variant!r}: side_fit takes only 'none' (the embedded model fits the sides)")
-    shot_cuts = pairs.pop("shot_cuts", None)
-    if shot_cuts not in (None, "none", "on"):
-        raise SystemExit(f"{variant!r}: shot_cuts takes 'none' or 'on'")
+    switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure")}
+    for name, value in switches.items():
+        if value not in (None, "none", "on"):
+            raise SystemExit(f"{variant!r}: {name} takes 'none' or 'on'")
     files = [] if refine == "none" else [Path(p) for p in refine.split("+") if p]
     alpha = pairs.pop("refine_alpha", None)
     if alpha is not None and not files:
@@ -87,10 +90,11 @@ def model_with(variant: str, folder: Path) -> Path | None:
     model = model.replace(detector_config=model.detector_config.replace(tracker=tracker))
     if side_fit == "none":
         model = model.replace(detector_config=model.detector_config.replace(side_fit=None))
-    if shot_cuts is not None:
-        from vehicle_detection.shots import ShotCuts
-
-        model = model.replace(detector_config=model.detector_config.replace(shot_cuts=None if shot_cuts == "none" else ShotCuts()))
+    defaults = vd.DetectorConfig()  # shot_cuts=on, exposure=on: the default settings
+    for name, value in switches.items():
+        if value is not None:
+            setting = None if value == "none" else getattr(defaults, name)
+            model = model.replace(detector_config=model.detector_config.replace(**{name: setting}))
     model.save(path, overwrite=True)
     return path
 
@@ -116,7 +120,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, shot_cuts=none|on")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, shot_cuts=none|on, exposure=none|on")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)

@@ -10,6 +10,7 @@ from .geometry import box_iou, match_boxes
 from .classifier import VehicleClassifier, load_default_model, load_model
 from .config import DetectorConfig
 from .detector import Detector
+from .exposure import Exposure
 from .features import FeatureConfig, extract_features
 from .horizon import estimate_horizon, vanishing_row
 from .overlays import active_area, find_overlays, static_mask

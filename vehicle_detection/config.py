@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from .exposure import Exposure
 from .refine import SideFit
 from .search import SearchPlan, SearchScale
 from .shots import ShotCuts
@@ -53,6 +54,10 @@ class DetectorConfig:
         the tracker afresh at each (:meth:`~vehicle_detection.tracker.Tracker.cut`): no track,
         and no heat, is carried from one shot into the next. None: the footage is taken as one
         shot.
+    exposure : Exposure or None
+        Brighten dark footage (dusk, dark cameras) for the search
+        (:mod:`~vehicle_detection.exposure`): a video measured on its first frames and at each
+        cut, an image or a frame searched on its own on itself. None: searched as it is.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)
@@ -62,6 +67,7 @@ class DetectorConfig:
     auto_overlays: bool = True
     side_fit: SideFit | None = field(default_factory=SideFit)
     shot_cuts: ShotCuts | None = field(default_factory=ShotCuts)
+    exposure: Exposure | None = field(default_factory=Exposure)
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -79,6 +85,8 @@ class DetectorConfig:
             raise ValueError(f"DetectorConfig.side_fit must be a SideFit or None; got {type(self.side_fit).__name__}")
         if self.shot_cuts is not None and not isinstance(self.shot_cuts, ShotCuts):
             raise ValueError(f"DetectorConfig.shot_cuts must be a ShotCuts or None; got {type(self.shot_cuts).__name__}")
+        if self.exposure is not None and not isinstance(self.exposure, Exposure):
+            raise ValueError(f"DetectorConfig.exposure must be an Exposure or None; got {type(self.exposure).__name__}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -106,7 +114,7 @@ class DetectorConfig:
             aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
         )
         return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False, side_fit=None,
-                   shot_cuts=None)
+                   shot_cuts=None, exposure=None)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""
@@ -141,6 +149,7 @@ class DetectorConfig:
             "auto_overlays": self.auto_overlays,
             "side_fit": None if self.side_fit is None else self.side_fit.to_dict(),
             "shot_cuts": None if self.shot_cuts is None else self.shot_cuts.to_dict(),
+            "exposure": None if self.exposure is None else self.exposure.to_dict(),
         }
 
     @classmethod
@@ -150,8 +159,9 @@ class DetectorConfig:
         Files saved before ``auto_horizon`` load with it False (their bands as they were
         searched); files saved before ``auto_overlays`` with it True (it changes nothing on
         footage without bars or static overlays, such as the project camera's); files saved
-        before ``side_fit`` with None (their boxes as they were reported), and before
-        ``shot_cuts`` with None (their videos tracked as one shot).
+        before ``side_fit`` with None (their boxes as they were reported), before
+        ``shot_cuts`` with None (their videos tracked as one shot), and before ``exposure``
+        with None (dark footage searched as it is).
 
         Raises
         ------
@@ -159,13 +169,13 @@ class DetectorConfig:
             If a key is missing or unknown, or a value is out of range.
         """
         keys = {"plan", "tracker", "image_threshold"}
-        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts")
+        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts", "exposure")
         if not isinstance(d, dict) or not keys <= set(d) <= keys | set(optional):
             raise ValueError(
                 "expected an object with 'plan', 'tracker', 'image_threshold' and optionally "
                 + ", ".join(f"'{k}'" for k in optional)
             )
-        side_fit, shot_cuts = d.get("side_fit"), d.get("shot_cuts")
+        side_fit, shot_cuts, exposure = d.get("side_fit"), d.get("shot_cuts"), d.get("exposure")
         return cls(
             plan=SearchPlan.from_dict(d["plan"]),
             tracker=TrackerConfig.from_dict(d["tracker"]),
@@ -174,4 +184,5 @@ class DetectorConfig:
             auto_overlays=d.get("auto_overlays", True),
             side_fit=None if side_fit is None else SideFit.from_dict(side_fit),
             shot_cuts=None if shot_cuts is None else ShotCuts.from_dict(shot_cuts),
+            exposure=None if exposure is None else Exposure.from_dict(exposure),
         )

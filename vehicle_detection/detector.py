@@ -31,6 +31,7 @@ from ._warmup import compile_search_kernels
 from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
+from .exposure import brighten, exposure_gain, picture_level
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
 from .horizon import TOLERANCE, estimate_horizon
@@ -85,6 +86,7 @@ class Detector:
 
     _overlays: Overlays | None = None  # the footage's bars and mask (with_overlays); None: each frame's bars
     _mask_sums: np.ndarray | None = None  # summed-area table of the mask
+    _gain: float | None = None  # the footage's gain for the search (with_gain); None: each frame's own
 
     def __init__(self, model: VehicleClassifier | None = None, config: DetectorConfig | None = None):
         self.model = load_default_model() if model is None else model
@@ -127,6 +129,22 @@ class Detector:
         out._mask_sums = None if overlays.mask is None else mask_integral(overlays.mask)
         return out
 
+    def with_gain(self, gain: float | None) -> Detector:
+        """This detector searching frames multiplied by ``gain`` (dark footage,
+        :mod:`~vehicle_detection.exposure`; None: as configured, each frame by its own measure)."""
+        if gain is None:
+            return self
+        out = copy.copy(self)
+        out._gain = float(gain)
+        return out
+
+    def _search_gain(self, picture: np.ndarray) -> float:
+        """What ``picture`` is multiplied by for the search: the footage's gain, else its own."""
+        rule = self.config.exposure
+        if rule is None:
+            return 1.0
+        return self._gain if self._gain is not None else exposure_gain(picture_level(picture), rule)
+
     def _moved_to(self, estimate: float | None) -> float | None:
         """The horizon to search at for an estimate: None when there is none or it is the reference's."""
         if estimate is None or abs(estimate - self.config.plan.reference_horizon) <= TOLERANCE:
@@ -146,18 +164,21 @@ class Detector:
           (:func:`~vehicle_detection.overlays.find_overlays`): the returned detector searches the
           picture inside the bars and drops windows with more than :data:`MASKED_SHARE` of their
           area on the mask;
-        * with :attr:`estimates_horizon`, the horizon of the picture; the returned detector
-          searches there, unless the estimate lies within
+        * with ``exposure``, whether the picture is dark
+          (:func:`~vehicle_detection.exposure.exposure_gain` of the median of the frames'
+          levels): the returned detector searches the frames brightened by that gain;
+        * with :attr:`estimates_horizon`, the horizon of the picture (brightened); the returned
+          detector searches there, unless the estimate lies within
           :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
 
         ``workers`` frames are measured at once (threads); the result is the same.
         :meth:`steps` measures each new shot again (:meth:`shot_cut`).
         """
-        overlays, horizon = self.config.auto_overlays, self.estimates_horizon
-        if not (overlays or horizon):
+        overlays, exposure, horizon = self.config.auto_overlays, self.config.exposure, self.estimates_horizon
+        if not (overlays or exposure or horizon):
             return self, frames
         state = tracker.state
-        if (overlays and not state.overlays_searched) or (horizon and not state.horizon_searched):
+        if (overlays and not state.overlays_searched) or (exposure and state.gain is None) or (horizon and not state.horizon_searched):
             first = list(itertools.islice(frames, HORIZON_FRAMES))
             frames = itertools.chain(first, frames)
             self._measure(first, state, workers)
@@ -167,13 +188,17 @@ class Detector:
         """Measure what :meth:`for_footage` says on ``first``, the first frames of the footage or
         (``new_shot``) of a new shot, into ``state``. A new shot whose horizon cannot be estimated
         keeps the last shot's (the same camera, as likely as not)."""
-        overlays, horizon = self.config.auto_overlays, self.estimates_horizon
+        overlays, exposure, horizon = self.config.auto_overlays, self.config.exposure, self.estimates_horizon
         if overlays and (new_shot or not state.overlays_searched):
             state.overlays = _footage_overlays(first)
             state.overlays_searched = True
+        cut = state.overlays if overlays else None
+        pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
+        if exposure and (new_shot or state.gain is None):
+            levels = [picture_level(p) for p in pictures if np.ndim(p) == 3 and np.shape(p)[2] == 3]
+            state.gain = exposure_gain(float(np.median(levels)), exposure) if levels else 1.0
         if horizon and (new_shot or not state.horizon_searched):
-            cut = state.overlays if overlays else None
-            pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
+            pictures = [brighten(p, state.gain) if state.gain is not None else p for p in pictures]
             estimate = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers)
             if estimate is not None or not new_shot:
                 state.horizon = self._moved_to(estimate)
@@ -181,7 +206,7 @@ class Detector:
 
     def _for_state(self, state: TrackerState) -> Detector:
         """This detector searching as the footage measured in ``state`` says."""
-        det = self.with_horizon(state.horizon)
+        det = self.with_horizon(state.horizon).with_gain(state.gain)
         return det.with_overlays(state.overlays) if self.config.auto_overlays else det
 
     def windows(self, frame: np.ndarray, around: np.ndarray | None = None) -> Detections:
@@ -190,7 +215,9 @@ class Detector:
         Only the picture is searched: inside the footage's black bars (:meth:`with_overlays`,
         set by :meth:`for_footage`), else, with ``auto_overlays``, inside the frame's own
         (:func:`~vehicle_detection.overlays.active_area`). Windows with more than
-        :data:`MASKED_SHARE` of their area on the footage's static overlays are dropped.
+        :data:`MASKED_SHARE` of their area on the footage's static overlays are dropped. With
+        ``exposure``, a dark picture is searched brightened (by the footage's gain,
+        :meth:`with_gain`, else by its own; :mod:`~vehicle_detection.exposure`).
 
         Parameters
         ----------
@@ -206,11 +233,12 @@ class Detector:
         frame = as_rgb_uint8(frame, name="frame")
         overlays = self._picture(frame)
         if overlays is None or not overlays.cropped:
-            found = search(frame, self.model, self.config.plan, around=around)
+            found = search(brighten(frame, self._search_gain(frame)), self.model, self.config.plan, around=around)
         else:
             shift = np.array(overlays.area[:2] * 2)
             inside = None if around is None else np.asarray(around, np.float64).reshape(-1, 4) - shift
-            found = search(overlays.crop(frame), self.model, self.config.plan, around=inside)
+            picture = overlays.crop(frame)
+            found = search(brighten(picture, self._search_gain(picture)), self.model, self.config.plan, around=inside)
             data = {k: v + shift if k == "box" else v for k, v in found.data.items()}
             found = found.replace(xyxy=found.xyxy + shift, data=data)
         if self._mask_sums is None or not len(found):

@@ -307,6 +307,9 @@ class TrackerState:
         The changes of the last frames checked (:func:`~vehicle_detection.shots.next_shot`).
     cuts : tuple of int
         The frames at which the tracker started afresh (:meth:`Tracker.cut`), in order.
+    gain : float or None
+        What the detector multiplies these frames by for the search (dark footage,
+        :mod:`~vehicle_detection.exposure`; 1.0 for daylight); None: not measured yet.
     """
 
     integrated: np.ndarray | None = None
@@ -321,6 +324,7 @@ class TrackerState:
     shot_thumbnail: np.ndarray | None = None
     shot_changes: tuple[float, ...] = ()
     cuts: tuple[int, ...] = ()
+    gain: float | None = None
 
     def copy(self) -> TrackerState:
         """A deep copy: updating either afterwards leaves the other unchanged."""
@@ -337,6 +341,7 @@ class TrackerState:
             shot_thumbnail=None if self.shot_thumbnail is None else self.shot_thumbnail.copy(),
             shot_changes=tuple(self.shot_changes),
             cuts=tuple(self.cuts),
+            gain=self.gain,
         )
 
 
