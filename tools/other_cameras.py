@@ -11,7 +11,9 @@ region) into OUT_DIR, then scores them with::
 A crop that starts lower or higher moves the road's vanishing point up or down in the frame, as a
 camera tilted down or up would; the resize changes the frame size and the cars' size in pixels. A
 small crop scaled up to 1280x720 is a longer lens: the cars as they would look closer (the
-``zoomed`` views, 1.5 and 2 times).
+``zoomed`` views, 1.5 and 2 times). The ``dusk`` views keep the frame and take the light away:
+each pixel multiplied by 0.35 or 0.2, with Gaussian noise of standard deviation 4 or 6 levels
+added (a fixed seed) before the encoding, as a camera at dusk raises its gain.
 """
 
 from __future__ import annotations
@@ -35,7 +37,12 @@ CAMERAS = {
     # the road, where clip A's cars drive; the horizon stays near the middle)
     "zoomed_1.5x_1280x720": ((427, 180, 1280, 660), (1280, 720)),
     "zoomed_2x_1280x720": ((640, 220, 1280, 580), (1280, 720)),
+    # dusk: the whole frame, darker and noisier (LIGHT)
+    "dusk_0.35_1280x720": ((0, 0, 1280, 720), (1280, 720)),
+    "dusk_0.2_1280x720": ((0, 0, 1280, 720), (1280, 720)),
 }
+#: name: (light kept, noise standard deviation in levels) of the views with less light
+LIGHT = {"dusk_0.35_1280x720": (0.35, 4.0), "dusk_0.2_1280x720": (0.2, 6.0)}
 
 
 def _move(box, crop, size):
@@ -54,10 +61,15 @@ def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
     x0, y0, x1, y1 = crop
     video = out_dir / f"{name}.mp4"
     frames = vd.read_frames(DEV_SET / "project_video_clip_A.mp4")
+    light, noise = LIGHT.get(name, (1.0, 0.0))
+    rng = np.random.default_rng(0)
     try:
         with vd.VideoWriter(video, 25, size, overwrite=True, crf=18) as writer:
             for frame in frames:
-                writer.write(cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), size, interpolation=cv2.INTER_AREA))
+                view = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), size, interpolation=cv2.INTER_AREA)
+                if name in LIGHT:
+                    view = np.clip(np.rint(view * light + rng.normal(0.0, noise, view.shape)), 0, 255).astype(np.uint8)
+                writer.write(view)
     finally:
         frames.close()
     written = [video]
