@@ -116,3 +116,20 @@ def test_dark_images_are_searched_brightened(test_frames):
     total = sum(len(c) for c in cars.values())
     assert total == 9 and (found["on"], false["on"]) == (9, 0)
     assert found["off"] < 9 or false["off"] > 0
+
+
+def test_cli_says_when_it_brightened_the_footage(tmp_path, capsys, clip):
+    from vehicle_detection.cli import main
+    from vehicle_detection.io.video import VideoWriter
+
+    for light in (1.0, 0.3):
+        video = tmp_path / f"light_{light}.mp4"
+        with VideoWriter(video, 25, (1280, 720)) as writer:
+            for frame in clip[:12]:
+                writer.write(np.rint(frame * light).astype(np.uint8))
+        assert main(["detect", str(video), "--no-progress", "--no-video", "--boxes", str(tmp_path / "b.csv"), "--overwrite"]) == 0
+        notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("dark picture:")]
+        if light == 1.0:
+            assert notes == []
+        else:
+            assert len(notes) == 1 and notes[0].startswith("dark picture: searched 3.") and "times as bright" in notes[0]

@@ -474,13 +474,15 @@ def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: O
 
 
 def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
-    """What the run measured of the footage: its black bars and overlays, its horizon, and its cuts between shots."""
+    """What the run measured of the footage: its black bars and overlays, its horizon, its light, and its cuts between shots."""
     state = tracker.state
     notes = list(state.overlays.describe()) if state.overlays is not None else []
     if state.horizon is not None:
         cropped = state.overlays is not None and state.overlays.cropped
         notes.append(f"horizon: {state.horizon:.3f} of the {'picture' if cropped else 'frame'} height, estimated from "
                      f"the video (the plan's {detector.config.plan.reference_horizon:.3f}); search bands moved accordingly")
+    if state.gain is not None and state.gain > 1.0:
+        notes.append(f"dark picture: searched {state.gain:.1f} times as bright (the frames written are as they were)")
     if state.cuts:  # each shot is measured again: the lines above are the last shot's
         shown = ", ".join(map(str, state.cuts[:8])) + (", ..." if len(state.cuts) > 8 else "")
         notes = [f"last shot: {note}" for note in notes]
