@@ -133,3 +133,18 @@ def test_cli_says_when_it_brightened_the_footage(tmp_path, capsys, clip):
             assert notes == []
         else:
             assert len(notes) == 1 and notes[0].startswith("dark picture: searched 3.") and "times as bright" in notes[0]
+
+
+def test_the_gain_is_kept_in_the_tracker_state_across_chunks(clip):
+    """A later chunk of a dark video is searched with the gain its first chunk measured."""
+    import vehicle_detection as vd
+
+    det = vd.Detector()
+    tracker = det.new_tracker()
+    list(det.track([np.rint(f * 0.3).astype(np.uint8) for f in clip[:12]], tracker))
+    gain = tracker.state.gain
+    assert gain > 2
+    later = vd.Tracker(det.config.tracker, tracker.state)
+    bright = [np.full((720, 1280, 3), 200, np.uint8)] * 3  # not measured again: no cut, same footage
+    moved, rest = det.for_footage(iter(bright), later)
+    assert moved._gain == gain and sum(1 for _ in rest) == 3
