@@ -423,7 +423,7 @@ class Detector:
         With :attr:`estimates_horizon`, the search bands follow the horizon estimated from the
         first frames (:meth:`for_footage`). Where the footage cuts to another shot
         (:meth:`shot_cut`), the tracker starts afresh and the new shot is measured again (bars,
-        overlays, horizon) from its first frames.
+        overlays, light, horizon) from its first frames.
 
         With a search schedule (``plan.full_search_every > 1``), the frames between full
         searches are searched around the tracks live when the frame is submitted (the tracker
@@ -469,7 +469,7 @@ class Detector:
         t = clock.lap("warmup", t)
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
         clock.lap("footage", t)
-        remeasure = self.config.auto_overlays or self.estimates_horizon
+        remeasure = self.config.auto_overlays or self.config.exposure is not None or self.estimates_horizon
 
         def advance(frame, future, cut, det):
             t = clock.now()
@@ -487,7 +487,7 @@ class Detector:
             try:
                 while (frame := ahead.popleft() if ahead else next(frames, None)) is not None:
                     cut = self.shot_cut(frame, tracker)  # checked now, so that a new shot is searched whole
-                    if cut and remeasure:  # a new shot: its bars, overlays and horizon measured again
+                    if cut and remeasure:  # a new shot: its bars, overlays, light and horizon measured again
                         t = clock.now()
                         ahead.extend(itertools.islice(frames, max(0, HORIZON_FRAMES - 1 - len(ahead))))
                         self._measure([frame, *itertools.islice(ahead, HORIZON_FRAMES - 1)], tracker.state, workers,
