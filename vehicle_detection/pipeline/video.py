@@ -220,7 +220,7 @@ def run_video(
         tracker = Tracker(detector.config.tracker, TrackerState(frame_index=start))  # frames keep their decoded index
     elif tracker.state.frame_index != start:
         raise ValueError(f"the tracker continues at frame {tracker.state.frame_index}, not at start={start}")
-    survey = road.survey(info.fps or 25.0)
+    survey = road.survey(info.fps or 25.0, shot_cuts=detector.config.shot_cuts)  # lanes afresh where the tracks are
     encoding, codec = encoding or Encoding(), threads or 0
     clock = timing(timeline)
     started = clock.now()

@@ -21,6 +21,7 @@ from ..detections import Detections
 from ..errors import InputError
 from ..io.tables import DISTANCE_COLUMNS
 from ..io.video import probe_video
+from ..shots import ShotCuts, next_shot
 from .autocamera import EstimateSettings, RoadEstimate, estimate_birds_eye, road_transform
 from .camera import Camera
 from .distance import DistanceTracker
@@ -142,9 +143,11 @@ class Road:
             return replace(self, lanes=False), estimate
         return replace(self, birds_eye=birds_eye), estimate
 
-    def survey(self, fps: float = 25.0) -> RoadSurvey:
-        """The road of one video at ``fps`` frames per second (or of one image), from its first frame."""
-        return RoadSurvey(self, fps)
+    def survey(self, fps: float = 25.0, *, shot_cuts: ShotCuts | None = None) -> RoadSurvey:
+        """The road of one video at ``fps`` frames per second (or of one image), from its first
+        frame; with ``shot_cuts``, the lane is found afresh after each cut between shots
+        (:mod:`~vehicle_detection.shots`)."""
+        return RoadSurvey(self, fps, shot_cuts=shot_cuts)
 
 
 class RoadSurvey:
@@ -156,10 +159,11 @@ class RoadSurvey:
         ``(frame, radius_m, offset_m)`` of every frame :meth:`record` was given (the lanes CSV).
     """
 
-    def __init__(self, road: Road, fps: float = 25.0) -> None:
+    def __init__(self, road: Road, fps: float = 25.0, *, shot_cuts: ShotCuts | None = None) -> None:
         self.road = road
         plane = road.plane
         self._lanes = LaneTracker(plane) if road.lanes else None
+        self._cuts, self._shot = shot_cuts, (None, ())  # the last frame's thumbnail and changes
         self._distances = None if plane is None else DistanceTracker(plane, fps)
         self.lane_rows: list[tuple[int, float | None, float | None]] = []
 
@@ -177,8 +181,18 @@ class RoadSurvey:
         return frame if self.road.camera is None else self.road.camera.undistort(frame)
 
     def find_lane(self, frame: np.ndarray) -> Lane | None:
-        """The lane of the next (undistorted) frame; None when lanes are not asked for or not found."""
-        return None if self._lanes is None else self._lanes.step(frame)
+        """The lane of the next (undistorted) frame; None when lanes are not asked for or not found.
+
+        A frame that starts a new shot is searched afresh: no fit of the last shot is kept.
+        """
+        if self._lanes is None:
+            return None
+        if self._cuts is not None:
+            cut, thumb, changes = next_shot(frame, *self._shot, self._cuts)
+            self._shot = (thumb, changes)
+            if cut:
+                self._lanes.reset()
+        return self._lanes.step(frame)
 
     def measure(self, found: Detections) -> Detections:
         """The next frame's boxes with ``distance_m`` and ``relative_speed_mps`` when the road
