@@ -466,3 +466,12 @@ def test_tracker_settings_saved_before_clustering_and_voting_load_with_them_off(
         assert getattr(TrackerConfig.from_dict(d), name) == 0.0
         with pytest.raises(ValueError, match=name):
             TrackerConfig(**{name: 1.5})
+
+
+def test_add_heat_cells_of_zero_weight_boxes_stay_exactly_zero():
+    """A case like the one hypothesis found: a cell covered only by a box of weight 0, next to
+    boxes whose weights do not cancel exactly in floating point ((3.3 + 6) - 6 - 3.3 = 8.9e-16),
+    kept that rounding residue instead of 0."""
+    boxes = np.array([[0, 0, 2, 1], [0, 0, 3, 1], [0, 0, 1, 1]])
+    heat = add_heat(np.zeros((1, 3), np.float32), boxes, [3.3, 0.0, 6.0], cell=1)
+    assert heat.tolist() == [[np.float32(9.3), np.float32(3.3), 0.0]]

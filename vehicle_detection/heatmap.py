@@ -186,8 +186,8 @@ def add_heat(heat: ArrayLike, boxes: ArrayLike | Detections, weights: ArrayLike 
     -----
     Vectorised over boxes: each box adds ``+w`` and ``-w`` at the corners of its cell range in a
     difference array spanning the boxes' bounding rectangle (one ``np.bincount``), and its
-    integral image (``cv2.integral``) is the summed heat, in float64. Cells that no box covers
-    are set to exactly 0 (rounding in the cumulative sums could otherwise leave ``1e-17``-sized
+    integral image (``cv2.integral``) is the summed heat, in float64. Cells that no box of
+    non-zero weight covers are set to exactly 0 (rounding in the cumulative sums could otherwise leave ``1e-17``-sized
     residues there, which a ``> 0`` threshold would pick up), and with non-negative weights the
     added heat is clipped at 0 for the same reason, so the result is never below ``heat``.
 
@@ -221,7 +221,8 @@ def add_heat(heat: ArrayLike, boxes: ArrayLike | Detections, weights: ArrayLike 
     rng = np.concatenate([np.floor(box_arr[:, :2] / cell), np.ceil(box_arr[:, 2:] / cell)], axis=1)
     np.clip(rng, 0, np.array([cols, rows, cols, rows], dtype=np.float64), out=rng)
     r = rng.astype(np.intp)
-    keep = (r[:, 2] > r[:, 0]) & (r[:, 3] > r[:, 1]) & (box_arr[:, 2] > box_arr[:, 0]) & (box_arr[:, 3] > box_arr[:, 1])
+    # Boxes of weight 0 add nothing and must not count as covering a cell (its rounding residue would stay).
+    keep = (r[:, 2] > r[:, 0]) & (r[:, 3] > r[:, 1]) & (box_arr[:, 2] > box_arr[:, 0]) & (box_arr[:, 3] > box_arr[:, 1]) & (w != 0)
     if not keep.all():
         r, w = r[keep], w[keep]
         if len(w) == 0:
