@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
+
+from ._settings import JsonSettings
 
 __all__ = ["Exposure", "brighten", "exposure_gain", "picture_level"]
 
@@ -29,7 +30,7 @@ _STEP = 4
 
 
 @dataclass(frozen=True)
-class Exposure:
+class Exposure(JsonSettings):
     """When and how much dark footage is brightened for the search.
 
     Parameters
@@ -57,24 +58,6 @@ class Exposure:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < low or (name == "dark" and v == 0):
                 raise ValueError(f"Exposure.{name} must be a finite number {'>' if name == 'dark' else '>='} {low:g}; got {v!r}")
             object.__setattr__(self, name, float(v))
-
-    def to_dict(self) -> dict:
-        """Plain JSON data."""
-        return {"dark": self.dark, "target": self.target, "max_gain": self.max_gain}
-
-    @classmethod
-    def from_dict(cls, d: Any) -> Exposure:
-        """The inverse of :meth:`to_dict`.
-
-        Raises
-        ------
-        ValueError
-            If a key is missing or unknown, or a value is out of range.
-        """
-        keys = {"dark", "target", "max_gain"}
-        if not isinstance(d, dict) or set(d) != keys:
-            raise ValueError(f"expected an object with exactly the keys {sorted(keys)}")
-        return cls(**d)
 
 
 def picture_level(picture: np.ndarray) -> float:

@@ -27,12 +27,12 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
 
 import cv2
 import numpy as np
 
 from ._jit import njit
+from ._settings import JsonSettings
 from .features import FeatureConfig, extract_features
 from .geometry import as_boxes
 
@@ -250,7 +250,7 @@ def fit_box_regressor(
 # Sides fitted to the image
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class SideFit:
+class SideFit(JsonSettings):
     """How :func:`fit_sides` moves a box's left and right sides onto the vehicle's edges.
 
     Parameters
@@ -294,24 +294,6 @@ class SideFit:
         if len(rows) != 2 or not all(isinstance(r, (int, float)) and not isinstance(r, bool) for r in rows) or not 0 <= rows[0] < rows[1] <= 1:
             raise ValueError(f"SideFit.rows must be two fractions 0 <= top < bottom <= 1; got {self.rows!r}")
         object.__setattr__(self, "rows", (float(rows[0]), float(rows[1])))
-
-    def to_dict(self) -> dict:
-        """Plain JSON data."""
-        return {"reach": self.reach, "prior": self.prior, "outer": self.outer, "rows": list(self.rows)}
-
-    @classmethod
-    def from_dict(cls, d: Any) -> SideFit:
-        """The inverse of :meth:`to_dict`.
-
-        Raises
-        ------
-        ValueError
-            If a key is missing or unknown, or a value is out of range.
-        """
-        keys = {"reach", "prior", "outer", "rows"}
-        if not isinstance(d, dict) or set(d) != keys:
-            raise ValueError(f"expected an object with exactly the keys {sorted(keys)}")
-        return cls(reach=d["reach"], prior=d["prior"], outer=d["outer"], rows=tuple(d["rows"]))
 
 
 def _column_strength(image: np.ndarray, top: int, bottom: int, left: int, right: int, first: int, end: int) -> np.ndarray:

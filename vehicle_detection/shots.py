@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
+
+from ._settings import JsonSettings
 
 __all__ = ["THUMBNAIL", "ShotCuts", "frame_change", "next_shot", "thumbnail"]
 
@@ -28,7 +29,7 @@ THUMBNAIL = (48, 27)
 
 
 @dataclass(frozen=True)
-class ShotCuts:
+class ShotCuts(JsonSettings):
     """When a frame starts a new shot.
 
     Parameters
@@ -62,24 +63,6 @@ class ShotCuts:
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
             raise ValueError(f"ShotCuts.memory must be an integer >= 1; got {m!r}")
         object.__setattr__(self, "memory", int(m))
-
-    def to_dict(self) -> dict:
-        """Plain JSON data."""
-        return {"threshold": self.threshold, "ratio": self.ratio, "memory": self.memory}
-
-    @classmethod
-    def from_dict(cls, d: Any) -> ShotCuts:
-        """The inverse of :meth:`to_dict`.
-
-        Raises
-        ------
-        ValueError
-            If a key is missing or unknown, or a value is out of range.
-        """
-        keys = {"threshold", "ratio", "memory"}
-        if not isinstance(d, dict) or set(d) != keys:
-            raise ValueError(f"expected an object with exactly the keys {sorted(keys)}")
-        return cls(**d)
 
 
 def thumbnail(frame: np.ndarray) -> np.ndarray:
