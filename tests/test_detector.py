@@ -392,11 +392,13 @@ def test_optional_settings_round_trip_and_older_files_load_without_them(name, ki
 
 
 def _two_shots():
-    """Ten frames of one shot (grey) with a car on the left, then ten of another (bright) with a
-    car on the right."""
+    """Ten frames of one shot with a car on the left, then ten of another (other blocks of grey)
+    with a car on the right."""
     out = []
+    scenes = [np.random.default_rng(seed).integers(60, 200, (9, 16, 1)).astype(np.uint8).repeat(80, 0).repeat(80, 1).repeat(3, 2)
+              for seed in (1, 2)]
     for i in range(20):
-        f = np.full((720, 1280, 3), 90 if i < 10 else 200, np.uint8)
+        f = scenes[i >= 10].copy()
         f[0, 0, 0] = i
         out.append(f)
 

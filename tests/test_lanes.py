@@ -287,14 +287,14 @@ def test_detect_with_lanes_on_the_test_video(real_camera, tmp_path):
 
 
 def test_no_lane_is_carried_across_a_cut_between_shots():
-    """A painted road, then a cut to a flat frame: with cuts found, the lane of the last shot is
-    not kept (no stale fit is drawn over the new shot); taken as one shot, it coasts on."""
+    """A painted road, then a cut to a frame of grey blocks: with cuts found, the lane of the last
+    shot is not kept (no stale fit is drawn over the new shot); taken as one shot, it coasts on."""
     from vehicle_detection.road.survey import Road
     from vehicle_detection.shots import ShotCuts
 
     painted = np.where(synthetic_road(1000, 0)[..., None] > 0, 230, 70).astype(np.uint8).repeat(3, axis=2)
-    flat = np.full_like(painted, 200)
-    frames = [painted] * 4 + [flat] * 3
+    blocks = np.random.default_rng(1).integers(0, 150, (H // 40, W // 40, 1)).astype(np.uint8).repeat(40, 0).repeat(40, 1).repeat(3, 2)
+    frames = [painted] * 4 + [blocks] * 3
     found = Road(lanes=True, birds_eye=identity_view()).survey(25, shot_cuts=ShotCuts())
     lanes = [found.find_lane(f) for f in frames]
     assert all(lane is not None and lane.fresh for lane in lanes[:4]) and lanes[4:] == [None] * 3

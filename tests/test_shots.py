@@ -60,12 +60,27 @@ def test_footage_changing_a_lot_every_frame_is_not_cut_at_every_frame():
 
 
 def test_the_threshold_and_the_ratio_both_decide():
-    dark, grey = np.full((90, 160, 3), 20, np.uint8), np.full((90, 160, 3), 60, np.uint8)  # change 40
-    assert _cuts([dark, dark, grey]) == [2]
-    assert _cuts([dark, dark, grey], ShotCuts(threshold=45)) == []
-    wobble = [dark, np.full_like(dark, 34), dark, np.full_like(dark, 34), dark]  # changes of 14
-    assert _cuts(wobble + [np.full_like(dark, 80)]) == [5]  # 80 - 20 = 60 > 3 x 14
-    assert _cuts(wobble + [np.full_like(dark, 80)], ShotCuts(ratio=4.5)) == []  # 60 < 4.5 x 14
+    a, b = _scene(1), _scene(2)
+    jump = frame_change(thumbnail(a), thumbnail(b))
+    assert jump > ShotCuts().threshold
+    assert _cuts([a, a, b]) == [2] and _cuts([a, a, b], ShotCuts(threshold=jump + 1)) == []
+    wobble = a.copy()
+    wobble[: a.shape[0] // 4] = b[: a.shape[0] // 4]  # a quarter of the frame changes back and forth
+    small = frame_change(thumbnail(a), thumbnail(wobble))
+    assert small < ShotCuts().threshold < jump
+    frames = [a, wobble, a, wobble, a, b]  # the jump after changes of `small`
+    assert _cuts(frames, ShotCuts(ratio=0.9 * jump / small)) == [5]
+    assert _cuts(frames, ShotCuts(ratio=1.1 * jump / small)) == []
+
+
+def test_a_sudden_change_of_light_is_not_a_cut():
+    """A bridge's shadow or the camera's exposure: the same scene at 0.45 of its light for a few
+    frames. Compared as they are, the thumbnails would differ by far more than the threshold."""
+    lit = _scene(1)
+    dark = np.rint(lit * 0.45).astype(np.uint8)
+    assert np.abs(thumbnail(lit) - thumbnail(dark)).mean() > 2 * ShotCuts().threshold
+    assert frame_change(thumbnail(lit), thumbnail(dark)) < 1.0
+    assert _cuts([lit] * 4 + [dark] * 4 + [lit] * 2) == []
 
 
 @pytest.mark.parametrize("name", ["test_video.mp4", "dev_set/project_video_clip_A.mp4"])

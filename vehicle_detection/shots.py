@@ -6,7 +6,9 @@ its tracks (:meth:`~vehicle_detection.tracker.Tracker.cut`); track ids go on.
 
 A cut is found from consecutive frames' thumbnails (:data:`THUMBNAIL` pixels, each the mean of
 a block of the frame, so the size of the frame does not matter): their mean absolute difference,
-in levels of 0 to 255, is a frame's *change*. A frame is a cut when its change exceeds
+in levels of 0 to 255, once the second is scaled to the first's mean brightness, is a frame's
+*change* (so a sudden change of light, a bridge's shadow or the camera's exposure, is not a
+cut). A frame is a cut when its change exceeds
 :attr:`ShotCuts.threshold` and :attr:`ShotCuts.ratio` times the median change of the
 :attr:`ShotCuts.memory` frames before it: a single-frame jump, not the steady large changes of
 fast or low-frame-rate footage.
@@ -81,7 +83,11 @@ def thumbnail(frame: np.ndarray) -> np.ndarray:
 
 
 def frame_change(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean absolute difference of two thumbnails (:func:`thumbnail`), in levels of 0 to 255."""
+    """Mean absolute difference of two thumbnails (:func:`thumbnail`), in levels of 0 to 255,
+    ``b`` scaled to ``a``'s mean brightness first (as it is when either is black)."""
+    mean_a, mean_b = float(a.mean()), float(b.mean())
+    if min(mean_a, mean_b) >= 1.0:
+        b = b * np.float32(mean_a / mean_b)
     return float(np.abs(a - b).mean())
 
 
