@@ -470,6 +470,7 @@ class Detector:
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
         clock.lap("footage", t)
         remeasure = self.config.auto_overlays or self.config.exposure is not None or self.estimates_horizon
+        search = clock.timed("search", det.windows)
 
         def advance(frame, future, cut, det):
             t = clock.now()
@@ -493,11 +494,12 @@ class Detector:
                         self._measure([frame, *itertools.islice(ahead, HORIZON_FRAMES - 1)], tracker.state, workers,
                                       new_shot=True)
                         det = self._for_state(tracker.state)
+                        search = clock.timed("search", det.windows)
                         clock.lap("footage", t)
                     # this frame's index: the frames advanced plus those still searched
                     around = None if cut else det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
-                    pending.append((frame, pool.submit(clock.timed("search", det.windows), *args), cut, det))
+                    pending.append((frame, pool.submit(search, *args), cut, det))
                     if len(pending) > workers:
                         yield advance(*pending.popleft())
                 while pending:

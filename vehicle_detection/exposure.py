@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._settings import JsonSettings
+from ._settings import JsonSettings, number_in
 
 __all__ = ["Exposure", "brighten", "exposure_gain", "picture_level"]
 
@@ -53,11 +53,9 @@ class Exposure(JsonSettings):
     max_gain: float = 4.0
 
     def __post_init__(self) -> None:
-        for name, low in (("dark", 0.0), ("target", self.dark), ("max_gain", 1.0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < low or (name == "dark" and v == 0):
-                raise ValueError(f"Exposure.{name} must be a finite number {'>' if name == 'dark' else '>='} {low:g}; got {v!r}")
-            object.__setattr__(self, name, float(v))
+        object.__setattr__(self, "dark", number_in(self, "dark", 0.0))
+        object.__setattr__(self, "target", number_in(self, "target", self.dark, low_in=True))
+        object.__setattr__(self, "max_gain", number_in(self, "max_gain", 1.0, low_in=True))
 
 
 def picture_level(picture: np.ndarray) -> float:

@@ -24,7 +24,6 @@ Boxes are ``(n, 4)`` arrays ``[x1, y1, x2, y2]`` in frame pixels, x2 and y2 excl
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -32,7 +31,7 @@ import cv2
 import numpy as np
 
 from ._jit import njit
-from ._settings import JsonSettings
+from ._settings import JsonSettings, number_in
 from .features import FeatureConfig, extract_features
 from .geometry import as_boxes
 
@@ -283,13 +282,9 @@ class SideFit(JsonSettings):
     rows: tuple[float, float] = (0.3, 0.95)
 
     def __post_init__(self) -> None:
-        checks = {"reach": (0.0, 0.5, False), "prior": (0.0, math.inf, False), "outer": (0.0, 1.0, True)}
-        for name, (lo, hi, closed) in checks.items():
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo < v and (v <= hi if closed else v < hi)
-            if not ok:
-                raise ValueError(f"SideFit.{name} must be a number in ({lo}, {hi}{']' if closed else ')'}; got {v!r}")
-            object.__setattr__(self, name, float(v))
+        object.__setattr__(self, "reach", number_in(self, "reach", 0.0, 0.5))
+        object.__setattr__(self, "prior", number_in(self, "prior", 0.0))
+        object.__setattr__(self, "outer", number_in(self, "outer", 0.0, 1.0, high_in=True))
         rows = tuple(self.rows) if isinstance(self.rows, (tuple, list)) else ()
         if len(rows) != 2 or not all(isinstance(r, (int, float)) and not isinstance(r, bool) for r in rows) or not 0 <= rows[0] < rows[1] <= 1:
             raise ValueError(f"SideFit.rows must be two fractions 0 <= top < bottom <= 1; got {self.rows!r}")

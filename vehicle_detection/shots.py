@@ -16,13 +16,12 @@ fast or low-frame-rate footage.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from ._settings import JsonSettings
+from ._settings import JsonSettings, number_in
 
 __all__ = ["THUMBNAIL", "ShotCuts", "frame_change", "next_shot", "thumbnail"]
 
@@ -56,11 +55,8 @@ class ShotCuts(JsonSettings):
     memory: int = 8
 
     def __post_init__(self) -> None:
-        for name, low, closed in (("threshold", 0.0, False), ("ratio", 1.0, True)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not (v >= low if closed else v > low):
-                raise ValueError(f"ShotCuts.{name} must be a finite number {'>=' if closed else '>'} {low:g}; got {v!r}")
-            object.__setattr__(self, name, float(v))
+        object.__setattr__(self, "threshold", number_in(self, "threshold", 0.0))
+        object.__setattr__(self, "ratio", number_in(self, "ratio", 1.0, low_in=True))
         m = self.memory
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
             raise ValueError(f"ShotCuts.memory must be an integer >= 1; got {m!r}")
