@@ -371,7 +371,8 @@ def test_tracked_boxes_have_their_sides_fitted_before_smoothing():
 
 
 @pytest.mark.parametrize("name, kind, bad", [("side_fit", "refine.SideFit", (0.1, 0.07)),
-                                             ("shot_cuts", "shots.ShotCuts", {"threshold": 30.0})])
+                                             ("shot_cuts", "shots.ShotCuts", {"threshold": 30.0}),
+                                             ("car_horizon", "horizon.CarHorizon", {"ratio": 0.57})])
 def test_optional_settings_round_trip_and_older_files_load_without_them(name, kind, bad):
     """Files saved before ``side_fit`` report their boxes as they did; before ``shot_cuts``,
     they track a video as one shot."""

@@ -9,7 +9,7 @@ import pytest
 from conftest import REPO
 from vehicle_detection.config import DetectorConfig
 from vehicle_detection.detector import Detector
-from vehicle_detection.horizon import TOLERANCE, estimate_horizon, vanishing_row
+from vehicle_detection.horizon import TOLERANCE, CarHorizon, estimate_horizon, horizon_from_cars, implied_horizon, vanishing_row
 from vehicle_detection.io.images import read_image
 from vehicle_detection.search import SearchPlan
 
@@ -184,3 +184,125 @@ def test_detector_load(tmp_path):
     path = default.model.replace(detector_config=default.config.at_horizon(0.5)).save(tmp_path / "m.npz")
     assert Detector.load(path).config.plan.horizon == 0.5
     assert Detector.load(path, horizon="auto").estimates_horizon
+
+
+# --- the horizon from the cars ---------------------------------------------------------------
+
+
+def cars_on_a_road(horizon: float, height: int = 720, ratio: float = 0.57, widths=(60, 90, 140, 220)) -> np.ndarray:
+    """Boxes of cars on a flat road whose horizon is at ``horizon`` of ``height``: each car's
+    bottom lies ``ratio`` times its width below it."""
+    out = []
+    for i, w in enumerate(widths):
+        bottom = horizon * height + ratio * w
+        x1 = 100 + 250 * i
+        out.append([x1, bottom - 0.8 * w, x1 + w, bottom])
+    return np.array(out, np.float64)
+
+
+def test_implied_horizon_is_the_ground_plane_of_each_box():
+    boxes = cars_on_a_road(0.52, 540)
+    assert np.allclose(implied_horizon(boxes, 540, 0.57), 0.52)
+    assert implied_horizon([[0, 0, 100, 300]], 600, 1.0)[0] == pytest.approx(200 / 600)
+    assert implied_horizon(np.zeros((0, 4)), 600, 0.5).shape == (0,)
+
+
+def test_horizon_from_cars_found_where_the_bands_were_right():
+    rule = CarHorizon()
+    cars = cars_on_a_road(0.47)
+    margins = np.full(len(cars), 1.5)
+    # Found at the candidates near 0.47 (0.43 and 0.51): they say 0.47.
+    found = [(0.43, cars[:3], margins[:3]), (0.51, cars[1:], margins[1:])]
+    assert horizon_from_cars(found, 720, rule) == pytest.approx(0.47, abs=1e-9)
+    # Windows hot at a candidate far from what their boxes imply (scenery, far clusters) do not count...
+    wrong = cars_on_a_road(0.30)
+    assert horizon_from_cars(found + [(0.67, wrong, np.full(4, 3.0))], 720, rule) == pytest.approx(0.47, abs=1e-9)
+    # ...nor weak windows, nor too few.
+    assert horizon_from_cars([(0.43, cars, np.full(4, 0.9)), (0.51, cars, np.full(4, 0.9))], 720, rule) is None
+    assert horizon_from_cars([(0.51, cars, margins)], 720, rule) is None  # 4 < min_hits
+    assert horizon_from_cars([(0.51, cars, margins)], 720, CarHorizon(min_hits=4)) == pytest.approx(0.47, abs=1e-9)
+    assert horizon_from_cars([], 720, rule) is None
+
+
+def test_horizon_from_cars_that_disagree_is_none():
+    rule = CarHorizon(agree=0.2)
+    a, b = cars_on_a_road(0.40), cars_on_a_road(0.55)
+    found = [(0.43, a, np.full(4, 2.0)), (0.51, b, np.full(4, 2.0))]  # two halves, 0.15 apart
+    assert horizon_from_cars(found, 720, rule) is None
+    heavier = [(0.43, a, np.full(4, 2.0)), (0.51, b, np.full(4, 6.0))]  # most of the weight agrees
+    assert horizon_from_cars(heavier, 720, rule) == pytest.approx(0.55, abs=1e-9)
+
+
+@pytest.mark.parametrize("bad", [{"ratio": 0.0}, {"ratio": 2.5}, {"agree": 0.5}, {"candidates": ()},
+                                 {"candidates": (0.5, 1.0)}, {"candidates": "0.5"}, {"min_hits": 0}, {"frames": 2.0},
+                                 {"min_margin": float("nan")}])
+def test_car_horizon_settings_are_checked(bad):
+    with pytest.raises(ValueError, match="CarHorizon." + next(iter(bad))):
+        CarHorizon(**bad)
+
+
+def test_car_horizon_settings_round_trip():
+    rule = CarHorizon(candidates=(0.4, 0.6), min_hits=3)
+    assert CarHorizon.from_dict(rule.to_dict()) == rule and rule.to_dict()["candidates"] == [0.4, 0.6]
+
+
+def _without_lines(monkeypatch):
+    """Footage whose road lines give no horizon (no markings, dusk, a car hiding them)."""
+    import vehicle_detection.detector as detector_module
+
+    monkeypatch.setattr(detector_module, "estimate_horizon", lambda *a, **k: None)
+
+
+def test_a_video_without_road_lines_takes_its_horizon_from_the_cars(monkeypatch):
+    _without_lines(monkeypatch)
+    video = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 12)]  # horizon 0.1 higher
+    detector = Detector()
+    tracker = detector.new_tracker()
+    moved, _ = detector.for_footage(iter(video), tracker)
+    assert tracker.state.horizon_source == "cars"
+    assert moved.config.plan.horizon == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
+    # Without the rule, lines or nothing: the plan as written.
+    off = Detector(config=detector.config.replace(car_horizon=None))
+    tracker = off.new_tracker()
+    same, _ = off.for_footage(iter(video), tracker)
+    assert same.config.plan.horizon is None and tracker.state.horizon is None and tracker.state.horizon_source is None
+
+
+def test_the_cars_of_a_longer_lens_give_its_horizon():
+    """Clip A zoomed twice about the right half of the road (``tools/other_cameras.py``'s
+    ``zoomed_2x`` view): the road's lines give no horizon, the cars give one within 0.03 of the
+    true 0.556 (the project camera's 0.583 moved by the crop)."""
+    import cv2
+
+    frames = [cv2.resize(np.ascontiguousarray(f[220:580, 640:1280]), (1280, 720), interpolation=cv2.INTER_AREA)
+              for f in _first_frames(REPO / "dev_set" / "project_video_clip_A.mp4", 12)]
+    assert estimate_horizon(frames, min_frames=3) is None
+    detector = Detector()
+    tracker = detector.new_tracker()
+    moved, _ = detector.for_footage(iter(frames), tracker)
+    assert tracker.state.horizon_source == "cars"
+    assert moved.config.plan.horizon == pytest.approx((0.583 * 720 - 220) / 360, abs=0.03)
+
+
+def test_the_cars_of_the_project_camera_agree_with_its_lines():
+    """Where both can be read, the cars and the lines agree within twice the tolerance."""
+    frames = _first_frames(REPO / "test_video.mp4", 12)
+    detector = Detector()
+    state = detector.new_tracker().state
+    state.overlays, state.overlays_searched, state.gain = None, True, 1.0
+    from_cars = detector._horizon_from_cars(frames, state, workers=2)
+    assert from_cars == pytest.approx(estimate_horizon(frames, min_frames=3), abs=2 * TOLERANCE)
+
+
+def test_cli_says_where_the_horizon_came_from(tmp_path, capsys, monkeypatch):
+    from vehicle_detection.cli import main
+    from vehicle_detection.io.video import VideoWriter
+
+    _without_lines(monkeypatch)
+    video = tmp_path / "tilted.mp4"
+    with VideoWriter(video, 25, (1280, 720)) as writer:
+        for frame in _first_frames(REPO / "test_video.mp4", 12):
+            writer.write(shifted(frame, 72))
+    assert main(["detect", str(video), "--no-progress"]) == 0
+    line = [l for l in capsys.readouterr().out.splitlines() if l.startswith("horizon: ")]
+    assert len(line) == 1 and "estimated from the cars found in the video" in line[0]

@@ -11,9 +11,10 @@ region) into OUT_DIR, then scores them with::
 A crop that starts lower or higher moves the road's vanishing point up or down in the frame, as a
 camera tilted down or up would; the resize changes the frame size and the cars' size in pixels. A
 small crop scaled up to 1280x720 is a longer lens: the cars as they would look closer (the
-``zoomed`` views, 1.5 and 2 times). The ``dusk`` views keep the frame and take the light away:
-each pixel multiplied by 0.35 or 0.2, with Gaussian noise of standard deviation 4 or 6 levels
-added (a fixed seed) before the encoding, as a camera at dusk raises its gain.
+``zoomed`` views, 1.5 and 2 times). The ``dusk`` views take the light away: each pixel
+multiplied by 0.35 or 0.2, with Gaussian noise of standard deviation 4 or 6 levels added (a fixed
+seed) before the encoding, as a camera at dusk raises its gain; two of them are of tilted views,
+whose horizon must be found without the road's lines.
 """
 
 from __future__ import annotations
@@ -40,9 +41,13 @@ CAMERAS = {
     # dusk: the whole frame, darker and noisier (LIGHT)
     "dusk_0.35_1280x720": ((0, 0, 1280, 720), (1280, 720)),
     "dusk_0.2_1280x720": ((0, 0, 1280, 720), (1280, 720)),
+    # dusk on the tilted cameras: no road lines to find the horizon by, and the bands must move
+    "dusk_0.2_tilted_down_960x540": ((80, 90, 1200, 720), (960, 540)),
+    "dusk_0.2_tilted_up_960x472": ((0, 0, 1280, 630), (960, 472)),
 }
 #: name: (light kept, noise standard deviation in levels) of the views with less light
-LIGHT = {"dusk_0.35_1280x720": (0.35, 4.0), "dusk_0.2_1280x720": (0.2, 6.0)}
+LIGHT = {"dusk_0.35_1280x720": (0.35, 4.0), "dusk_0.2_1280x720": (0.2, 6.0), "dusk_0.2_tilted_down_960x540": (0.2, 6.0),
+         "dusk_0.2_tilted_up_960x472": (0.2, 6.0)}
 
 
 def _move(box, crop, size):

@@ -12,7 +12,7 @@ from .config import DetectorConfig
 from .detector import Detector
 from .exposure import Exposure
 from .features import FeatureConfig, extract_features
-from .horizon import estimate_horizon, vanishing_row
+from .horizon import CarHorizon, estimate_horizon, horizon_from_cars, vanishing_row
 from .overlays import active_area, find_overlays, static_mask
 from .refine import SideFit, fit_sides
 from .search import SearchPlan, SearchScale

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .exposure import Exposure
+from .horizon import CarHorizon
 from .refine import SideFit
 from .search import SearchPlan, SearchScale
 from .shots import ShotCuts
@@ -39,6 +40,10 @@ class DetectorConfig:
         When the plan fixes no ``horizon``, estimate the camera's horizon from a video's first
         frames (:mod:`~vehicle_detection.horizon`) and move the search bands to it. Where no
         estimate can be made, and for single images, the plan is used as written.
+    car_horizon : CarHorizon or None
+        With ``auto_horizon``, where the road's lines give no horizon, read it off the cars
+        found with the bands at several candidate horizons
+        (:func:`~vehicle_detection.horizon.horizon_from_cars`). None: from the lines only.
     auto_overlays : bool
         Search only the picture inside black bars, and drop windows lying mostly on the
         camera car's static parts (bonnet, windscreen mount) or burnt-in text, all found from a
@@ -68,6 +73,7 @@ class DetectorConfig:
     side_fit: SideFit | None = field(default_factory=SideFit)
     shot_cuts: ShotCuts | None = field(default_factory=ShotCuts)
     exposure: Exposure | None = field(default_factory=Exposure)
+    car_horizon: CarHorizon | None = field(default_factory=CarHorizon)
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -87,6 +93,8 @@ class DetectorConfig:
             raise ValueError(f"DetectorConfig.shot_cuts must be a ShotCuts or None; got {type(self.shot_cuts).__name__}")
         if self.exposure is not None and not isinstance(self.exposure, Exposure):
             raise ValueError(f"DetectorConfig.exposure must be an Exposure or None; got {type(self.exposure).__name__}")
+        if self.car_horizon is not None and not isinstance(self.car_horizon, CarHorizon):
+            raise ValueError(f"DetectorConfig.car_horizon must be a CarHorizon or None; got {type(self.car_horizon).__name__}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -114,7 +122,7 @@ class DetectorConfig:
             aspect_range=(0.3, 4.0), score_gain=1.0, peak_fraction=0.3, split_size=(64, 64), window_inset=(0.0, 0.0, 0.0, 0.0),
         )
         return cls(plan=plan, tracker=tracker, image_threshold=2.0, auto_horizon=False, auto_overlays=False, side_fit=None,
-                   shot_cuts=None, exposure=None)
+                   shot_cuts=None, exposure=None, car_horizon=None)
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with some fields replaced."""
@@ -150,6 +158,7 @@ class DetectorConfig:
             "side_fit": None if self.side_fit is None else self.side_fit.to_dict(),
             "shot_cuts": None if self.shot_cuts is None else self.shot_cuts.to_dict(),
             "exposure": None if self.exposure is None else self.exposure.to_dict(),
+            "car_horizon": None if self.car_horizon is None else self.car_horizon.to_dict(),
         }
 
     @classmethod
@@ -160,8 +169,9 @@ class DetectorConfig:
         searched); files saved before ``auto_overlays`` with it True (it changes nothing on
         footage without bars or static overlays, such as the project camera's); files saved
         before ``side_fit`` with None (their boxes as they were reported), before
-        ``shot_cuts`` with None (their videos tracked as one shot), and before ``exposure``
-        with None (dark footage searched as it is).
+        ``shot_cuts`` with None (their videos tracked as one shot), before ``exposure``
+        with None (dark footage searched as it is), and before ``car_horizon`` with None
+        (the horizon from the road's lines only).
 
         Raises
         ------
@@ -169,13 +179,13 @@ class DetectorConfig:
             If a key is missing or unknown, or a value is out of range.
         """
         keys = {"plan", "tracker", "image_threshold"}
-        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts", "exposure")
+        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts", "exposure", "car_horizon")
         if not isinstance(d, dict) or not keys <= set(d) <= keys | set(optional):
             raise ValueError(
                 "expected an object with 'plan', 'tracker', 'image_threshold' and optionally "
                 + ", ".join(f"'{k}'" for k in optional)
             )
-        side_fit, shot_cuts, exposure = d.get("side_fit"), d.get("shot_cuts"), d.get("exposure")
+        side_fit, shot_cuts, exposure, cars = d.get("side_fit"), d.get("shot_cuts"), d.get("exposure"), d.get("car_horizon")
         return cls(
             plan=SearchPlan.from_dict(d["plan"]),
             tracker=TrackerConfig.from_dict(d["tracker"]),
@@ -185,4 +195,5 @@ class DetectorConfig:
             side_fit=None if side_fit is None else SideFit.from_dict(side_fit),
             shot_cuts=None if shot_cuts is None else ShotCuts.from_dict(shot_cuts),
             exposure=None if exposure is None else Exposure.from_dict(exposure),
+            car_horizon=None if cars is None else CarHorizon.from_dict(cars),
         )

@@ -34,7 +34,7 @@ from .detections import Detections
 from .exposure import brighten, exposure_gain, picture_level
 from .geometry import inset_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
-from .horizon import TOLERANCE, estimate_horizon
+from .horizon import TOLERANCE, estimate_horizon, horizon_from_cars
 from .io.images import as_image, as_rgb_uint8
 from .io.timeline import Timeline, timing
 from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
@@ -199,10 +199,38 @@ class Detector:
             state.gain = exposure_gain(float(np.median(levels)), exposure) if levels else 1.0
         if horizon and (new_shot or not state.horizon_searched):
             pictures = [brighten(p, state.gain) if state.gain is not None else p for p in pictures]
-            estimate = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers)
+            estimate, source = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers), "lines"
+            if estimate is None and self.config.car_horizon is not None:
+                estimate, source = self._horizon_from_cars(first, state, workers), "cars"
             if estimate is not None or not new_shot:
                 state.horizon = self._moved_to(estimate)
+                state.horizon_source = source if state.horizon is not None else None
             state.horizon_searched = True
+
+    def _horizon_from_cars(self, first: list, state: TrackerState, workers: int) -> float | None:
+        """The horizon of ``first`` read off the cars found with the bands at each candidate
+        horizon of ``config.car_horizon`` (:func:`~vehicle_detection.horizon.horizon_from_cars`),
+        searching as ``state`` says otherwise (bars, overlays, light); None if they do not agree."""
+        rule = self.config.car_horizon
+        frames = [f for f in first if np.ndim(f) == 3 and np.shape(f)[2] == 3 and np.shape(f) == np.shape(first[0])]
+        if not frames or np.asarray(frames[0]).dtype != np.uint8:
+            return None
+        frames = frames[:: max(1, len(frames) // rule.frames)][: rule.frames]
+        base = self.with_gain(state.gain)
+        if self.config.auto_overlays:
+            base = base.with_overlays(state.overlays)
+        cut = state.overlays
+        top, height = (cut.area[1], cut.area[3] - cut.area[1]) if cut is not None and cut.cropped else (0, frames[0].shape[0])
+
+        def hits(job):
+            candidate, frame = job
+            found = base.with_horizon(candidate).windows(frame)
+            boxes = np.asarray(found.data.get("box", found.xyxy), np.float64).reshape(-1, 4) - (0, top, 0, top)
+            return candidate, boxes, found.score
+
+        jobs = [(c, f) for c in rule.candidates for f in frames]
+        with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="horizon") as pool:
+            return horizon_from_cars(pool.map(hits, jobs), height, rule)
 
     def _for_state(self, state: TrackerState) -> Detector:
         """This detector searching as the footage measured in ``state`` says."""

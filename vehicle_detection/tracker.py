@@ -293,6 +293,9 @@ class TrackerState:
         way in every chunk.
     horizon_searched : bool
         Whether the detector has looked for the horizon.
+    horizon_source : str or None
+        Where ``horizon`` was read: ``"lines"`` (the road's lines) or ``"cars"`` (the cars
+        found at several candidate horizons); None with no ``horizon``.
     overlays : Overlays or None
         The black bars and static overlays the detector found in these frames
         (:class:`~vehicle_detection.overlays.Overlays`; None: not looked for yet), kept for
@@ -319,6 +322,7 @@ class TrackerState:
     frame_shape: tuple[int, int] | None = None
     horizon: float | None = None
     horizon_searched: bool = False
+    horizon_source: str | None = None
     overlays: Overlays | None = None
     overlays_searched: bool = False
     shot_thumbnail: np.ndarray | None = None
@@ -336,6 +340,7 @@ class TrackerState:
             frame_shape=self.frame_shape,
             horizon=self.horizon,
             horizon_searched=self.horizon_searched,
+            horizon_source=self.horizon_source,
             overlays=self.overlays,
             overlays_searched=self.overlays_searched,
             shot_thumbnail=None if self.shot_thumbnail is None else self.shot_thumbnail.copy(),

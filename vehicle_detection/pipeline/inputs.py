@@ -479,8 +479,9 @@ def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:
     notes = list(state.overlays.describe()) if state.overlays is not None else []
     if state.horizon is not None:
         cropped = state.overlays is not None and state.overlays.cropped
+        source = "the cars found in the video" if state.horizon_source == "cars" else "the video's road lines"
         notes.append(f"horizon: {state.horizon:.3f} of the {'picture' if cropped else 'frame'} height, estimated from "
-                     f"the video (the plan's {detector.config.plan.reference_horizon:.3f}); search bands moved accordingly")
+                     f"{source} (the plan's {detector.config.plan.reference_horizon:.3f}); search bands moved accordingly")
     if state.gain is not None and state.gain > 1.0:
         notes.append(f"dark picture: searched {state.gain:.1f} times as bright (the frames written are as they were)")
     if state.cuts:  # each shot is measured again: the lines above are the last shot's
