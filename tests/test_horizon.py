@@ -306,3 +306,37 @@ def test_cli_says_where_the_horizon_came_from(tmp_path, capsys, monkeypatch):
     assert main(["detect", str(video), "--no-progress"]) == 0
     line = [l for l in capsys.readouterr().out.splitlines() if l.startswith("horizon: ")]
     assert len(line) == 1 and "estimated from the cars found in the video" in line[0]
+
+
+def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeypatch):
+    _without_lines(monkeypatch)
+    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    grey = np.full((720, 1280, 3), 90, np.uint8)
+    tracker = detector.new_tracker()
+    list(detector.track([grey] * 50, tracker))
+    # measured on frames 0-11, again before frame 24 (on 12-23) and 48 (on 36-47): next before 96
+    assert tracker.state.horizon is None and tracker.state.horizon_retry == (0, 96)
+    off = Detector(config=detector.config.replace(car_horizon=None))
+    tracker = off.new_tracker()
+    list(off.track([grey] * 30, tracker))
+    assert tracker.state.horizon_retry is None  # with the lines only, no second look
+
+
+def test_cars_that_come_later_give_the_horizon(monkeypatch):
+    """An empty road first, then cars: the horizon is read off them when the shot is measured
+    again, and the bands move there (lines give none; the camera tilted down by 0.1)."""
+    _without_lines(monkeypatch)
+    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    cars = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 38)]
+    road = cars[0].copy()
+    road[300:] = road[-1:].mean(axis=(0, 1)).astype(np.uint8)  # no car, no line
+    video = [road] * 36 + cars
+    tracker = detector.new_tracker()
+    found = list(detector.track(video, tracker))
+    assert tracker.state.horizon_source == "cars" and tracker.state.horizon_retry is None
+    assert tracker.state.horizon == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
+    # measured again before frame 48 on frames 36-47: the frames after it are searched there, and
+    # the test video's two cars are found in each (the plan as written finds neither)
+    assert all(len(f) == 2 for f in found[50:])
+    off = Detector(config=detector.config.replace(car_horizon=None))
+    assert sum(len(f) for f in off.track(video)) == 0

@@ -184,10 +184,11 @@ class Detector:
             self._measure(first, state, workers)
         return self._for_state(state), frames
 
-    def _measure(self, first: list, state: TrackerState, workers: int, *, new_shot: bool = False) -> None:
+    def _measure(self, first: list, state: TrackerState, workers: int, *, new_shot: bool = False, start: int | None = None) -> None:
         """Measure what :meth:`for_footage` says on ``first``, the first frames of the footage or
-        (``new_shot``) of a new shot, into ``state``. A new shot whose horizon cannot be estimated
-        keeps the last shot's (the same camera, as likely as not)."""
+        (``new_shot``) of a new shot, the one of index ``start`` (default: ``state.frame_index``),
+        into ``state``. A new shot whose horizon cannot be estimated keeps the last shot's (the
+        same camera, as likely as not)."""
         overlays, exposure, horizon = self.config.auto_overlays, self.config.exposure, self.estimates_horizon
         if overlays and (new_shot or not state.overlays_searched):
             state.overlays = _footage_overlays(first)
@@ -198,14 +199,28 @@ class Detector:
             levels = [picture_level(p) for p in pictures if np.ndim(p) == 3 and np.shape(p)[2] == 3]
             state.gain = exposure_gain(float(np.median(levels)), exposure) if levels else 1.0
         if horizon and (new_shot or not state.horizon_searched):
-            pictures = [brighten(p, state.gain) if state.gain is not None else p for p in pictures]
-            estimate, source = estimate_horizon(pictures, min_frames=min(3, len(first)), workers=workers), "lines"
-            if estimate is None and self.config.car_horizon is not None:
-                estimate, source = self._horizon_from_cars(first, state, workers), "cars"
-            if estimate is not None or not new_shot:
-                state.horizon = self._moved_to(estimate)
-                state.horizon_source = source if state.horizon is not None else None
-            state.horizon_searched = True
+            start = state.frame_index if start is None else start
+            self._measure_horizon(first, state, workers, start=start, end=start + len(first), keep_last=new_shot)
+
+    def _measure_horizon(self, frames: list, state: TrackerState, workers: int, *, start: int, end: int, keep_last: bool) -> bool:
+        """Estimate the horizon of ``frames``, the frames before ``end`` of the shot that began at
+        ``start``, into ``state``: from the road's lines, else (``car_horizon``) from the cars. With
+        ``keep_last``, no estimate keeps the horizon ``state`` has. Where neither gives one, the
+        shot is measured again later (:meth:`steps`), when it is twice as old: cars come and go.
+        Whether an estimate was made."""
+        cut = state.overlays if self.config.auto_overlays else None
+        pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in frames]
+        pictures = [brighten(p, state.gain) if state.gain is not None else p for p in pictures]
+        estimate, source = estimate_horizon(pictures, min_frames=min(3, len(frames)), workers=workers), "lines"
+        if estimate is None and self.config.car_horizon is not None:
+            estimate, source = self._horizon_from_cars(frames, state, workers), "cars"
+        if estimate is not None or not keep_last:
+            state.horizon = self._moved_to(estimate)
+            state.horizon_source = source if state.horizon is not None else None
+        state.horizon_searched = True
+        again = estimate is None and self.config.car_horizon is not None
+        state.horizon_retry = (start, end + max(HORIZON_FRAMES, end - start)) if again else None
+        return estimate is not None
 
     def _horizon_from_cars(self, first: list, state: TrackerState, workers: int) -> float | None:
         """The horizon of ``first`` read off the cars found with the bands at each candidate
@@ -512,20 +527,34 @@ class Detector:
 
         pending: deque = deque()
         ahead: deque = deque()  # frames read to measure a new shot, not yet searched
+        recent: deque = deque(maxlen=HORIZON_FRAMES)  # the last frames, kept while the horizon is to be measured again
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 while (frame := ahead.popleft() if ahead else next(frames, None)) is not None:
+                    index = tracker.state.frame_index + len(pending)  # the frames advanced plus those still searched
                     cut = self.shot_cut(frame, tracker)  # checked now, so that a new shot is searched whole
+                    retry = tracker.state.horizon_retry
                     if cut and remeasure:  # a new shot: its bars, overlays, light and horizon measured again
                         t = clock.now()
+                        recent.clear()
                         ahead.extend(itertools.islice(frames, max(0, HORIZON_FRAMES - 1 - len(ahead))))
                         self._measure([frame, *itertools.islice(ahead, HORIZON_FRAMES - 1)], tracker.state, workers,
-                                      new_shot=True)
+                                      new_shot=True, start=index)
                         det = self._for_state(tracker.state)
                         search = clock.timed("search", det.windows)
                         clock.lap("footage", t)
-                    # this frame's index: the frames advanced plus those still searched
-                    around = None if cut else det._scheduled_around(tracker, tracker.state.frame_index + len(pending))
+                    elif retry is not None and index >= retry[1] and len(recent) == recent.maxlen:
+                        # a shot whose horizon neither its lines nor its cars gave: its last frames, again
+                        t = clock.now()
+                        if self._measure_horizon(list(recent), tracker.state, workers, start=retry[0], end=index, keep_last=True):
+                            det = self._for_state(tracker.state)
+                            search = clock.timed("search", det.windows)
+                        clock.lap("footage", t)
+                    if tracker.state.horizon_retry is not None:
+                        recent.append(frame)
+                    else:
+                        recent.clear()
+                    around = None if cut else det._scheduled_around(tracker, index)
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
                     pending.append((frame, pool.submit(search, *args), cut, det))
                     if len(pending) > workers:

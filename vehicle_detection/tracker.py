@@ -296,6 +296,10 @@ class TrackerState:
     horizon_source : str or None
         Where ``horizon`` was read: ``"lines"`` (the road's lines) or ``"cars"`` (the cars
         found at several candidate horizons); None with no ``horizon``.
+    horizon_retry : (int, int) or None
+        Where neither the lines nor the cars of a shot gave a horizon: the index of the shot's
+        first frame, and of the frame before which its horizon is measured again (on the frames
+        just before it); None otherwise.
     overlays : Overlays or None
         The black bars and static overlays the detector found in these frames
         (:class:`~vehicle_detection.overlays.Overlays`; None: not looked for yet), kept for
@@ -323,6 +327,7 @@ class TrackerState:
     horizon: float | None = None
     horizon_searched: bool = False
     horizon_source: str | None = None
+    horizon_retry: tuple[int, int] | None = None
     overlays: Overlays | None = None
     overlays_searched: bool = False
     shot_thumbnail: np.ndarray | None = None
@@ -341,6 +346,7 @@ class TrackerState:
             horizon=self.horizon,
             horizon_searched=self.horizon_searched,
             horizon_source=self.horizon_source,
+            horizon_retry=self.horizon_retry,
             overlays=self.overlays,
             overlays_searched=self.overlays_searched,
             shot_thumbnail=None if self.shot_thumbnail is None else self.shot_thumbnail.copy(),
