@@ -18,7 +18,9 @@ the embedded model:
 * ``shot_cuts=none`` or ``shot_cuts=on``: the video tracked as one shot, or the tracker started
   afresh at each cut between shots (:mod:`vehicle_detection.shots`, default settings);
 * ``exposure=none`` or ``exposure=on``: dark footage searched as it is, or brightened
-  (:mod:`vehicle_detection.exposure`, default settings).
+  (:mod:`vehicle_detection.exposure`, default settings);
+* ``car_horizon=none`` or ``car_horizon=on``: the horizon from the road's lines only, or also
+  from the cars where the lines give none (:class:`vehicle_detection.horizon.CarHorizon`).
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
@@ -65,7 +67,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
     side_fit = pairs.pop("side_fit", None)
     if side_fit not in (None, "none"):
         raise SystemExit(f"{variant!r}: side_fit takes only 'none' (the embedded model fits the sides)")
-    switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure")}
+    switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
     for name, value in switches.items():
         if value not in (None, "none", "on"):
             raise SystemExit(f"{variant!r}: {name} takes 'none' or 'on'")
@@ -90,7 +92,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
     model = model.replace(detector_config=model.detector_config.replace(tracker=tracker))
     if side_fit == "none":
         model = model.replace(detector_config=model.detector_config.replace(side_fit=None))
-    defaults = vd.DetectorConfig()  # shot_cuts=on, exposure=on: the default settings
+    defaults = vd.DetectorConfig()  # shot_cuts=on, exposure=on, car_horizon=on: the default settings
     for name, value in switches.items():
         if value is not None:
             setting = None if value == "none" else getattr(defaults, name)
@@ -120,7 +122,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, shot_cuts=none|on, exposure=none|on")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, shot_cuts=none|on, exposure=none|on, car_horizon=none|on")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
