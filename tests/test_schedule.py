@@ -68,7 +68,7 @@ class _Spy(Detector):
 
     def __init__(self, plan):
         super().__init__()
-        self.config = self.config.replace(plan=plan)
+        self.config = self.config.replace(plan=plan, car_horizon=None)  # only the frames' own searches asked
         self.asked = []
 
     def windows(self, frame, around=None):
