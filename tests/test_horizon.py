@@ -340,3 +340,43 @@ def test_cars_that_come_later_give_the_horizon(monkeypatch):
     assert all(len(f) == 2 for f in found[50:])
     off = Detector(config=detector.config.replace(car_horizon=None))
     assert sum(len(f) for f in off.track(video)) == 0
+
+
+def _road_then_cars():
+    """36 frames of an empty road without lines, then the test video's 38 frames, shifted as a
+    camera tilted down by 0.1 sees them."""
+    cars = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 38)]
+    road = cars[0].copy()
+    road[300:] = road[-1:].mean(axis=(0, 1)).astype(np.uint8)
+    return [road] * 36 + cars
+
+
+def test_a_second_look_reads_frames_as_decoded_not_as_drawn_on(monkeypatch):
+    """The caller draws on the frames it gets back (``process_video`` does); the frames of a
+    second look at the horizon are the decoded ones all the same."""
+    _without_lines(monkeypatch)
+    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    clean = [f[1] for f in detector.track_frames([f.copy() for f in _road_then_cars()])]
+    drawn = []
+    for frame, found in detector.track_frames([f.copy() for f in _road_then_cars()]):
+        frame[...] = 255  # drawn over, entirely
+        drawn.append(found)
+    assert sum(map(len, clean)) > 0 and all(a == b for a, b in zip(clean, drawn, strict=True))
+
+
+@pytest.mark.parametrize("chunk", [10, 20])
+def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path, chunk):
+    from vehicle_detection.io.video import VideoWriter
+    from vehicle_detection.pipeline import process_video
+    from vehicle_detection.pipeline.batch import detect_chunked
+
+    _without_lines(monkeypatch)
+    video = tmp_path / "road_then_cars.mp4"
+    with VideoWriter(video, 25, (1280, 720)) as writer:
+        for frame in _road_then_cars():
+            writer.write(frame)
+    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    tracker = detector.new_tracker()
+    whole = process_video(video, None, detector=detector, progress=False, tracker=tracker)
+    assert tracker.state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
+    assert detect_chunked(video, chunk, detector=detector) == whole

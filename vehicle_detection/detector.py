@@ -219,7 +219,9 @@ class Detector:
             state.horizon_source = source if state.horizon is not None else None
         state.horizon_searched = True
         again = estimate is None and self.config.car_horizon is not None
-        state.horizon_retry = (start, end + max(HORIZON_FRAMES, end - start)) if again else None
+        # at twice the shot's age: before frames 24, 48, 96, ... of it (a first measurement on
+        # fewer frames, a short first chunk, keeps the same schedule)
+        state.horizon_retry = (start, start + 2 * max(HORIZON_FRAMES, end - start)) if again else None
         return estimate is not None
 
     def _horizon_from_cars(self, first: list, state: TrackerState, workers: int) -> float | None:
@@ -227,14 +229,13 @@ class Detector:
         horizon of ``config.car_horizon`` (:func:`~vehicle_detection.horizon.horizon_from_cars`),
         searching as ``state`` says otherwise (bars, overlays, light); None if they do not agree."""
         rule = self.config.car_horizon
-        frames = [f for f in first if np.ndim(f) == 3 and np.shape(f)[2] == 3 and np.shape(f) == np.shape(first[0])]
-        if not frames or np.asarray(frames[0]).dtype != np.uint8:
+        frames = [f for f in first if np.shape(f) == np.shape(first[0]) and np.asarray(f).dtype == np.uint8]
+        if not frames or np.ndim(frames[0]) != 3 or np.shape(frames[0])[2] != 3:
             return None
         frames = frames[:: max(1, len(frames) // rule.frames)][: rule.frames]
         base = self.with_gain(state.gain)
-        if self.config.auto_overlays:
-            base = base.with_overlays(state.overlays)
-        cut = state.overlays
+        cut = state.overlays if self.config.auto_overlays else None
+        base = base.with_overlays(cut)
         top, height = (cut.area[1], cut.area[3] - cut.area[1]) if cut is not None and cut.cropped else (0, frames[0].shape[0])
 
         def hits(job):
@@ -464,7 +465,8 @@ class Detector:
         single frame.
 
         With :attr:`estimates_horizon`, the search bands follow the horizon estimated from the
-        first frames (:meth:`for_footage`). Where the footage cuts to another shot
+        first frames (:meth:`for_footage`); where neither the road's lines nor the cars give one
+        there, the shot is measured again later, and the bands move when it is found. Where the footage cuts to another shot
         (:meth:`shot_cut`), the tracker starts afresh and the new shot is measured again (bars,
         overlays, light, horizon) from its first frames.
 
@@ -496,7 +498,8 @@ class Detector:
             yield release()
 
     def steps(
-        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int, *, timeline: Timeline | None = None
+        self, frames: Iterable[np.ndarray], tracker: Tracker, workers: int, *, timeline: Timeline | None = None,
+        before: Iterable[np.ndarray] = (),
     ) -> Iterator[tuple[np.ndarray, int, Detections, Detections]]:
         """The tracker advanced frame by frame, without lag: ``(frame, index, found, backfill)``.
 
@@ -505,6 +508,11 @@ class Detector:
         tracks). :meth:`track_frames` holds frames back to apply it; a chunked run
         (:func:`~vehicle_detection.pipeline.batch.track_chunk`) keeps the steps to join them later.
         A ``timeline`` is filled as :meth:`track_frames` says.
+
+        A shot whose horizon is to be measured again (``tracker.state.horizon_retry``) is
+        measured on copies of its last :data:`HORIZON_FRAMES` frames (the caller may draw on
+        the frames it gets back). ``before``: the frames just before ``frames`` (a chunk's
+        predecessors), so that such a measurement early in a chunk sees what a whole run sees.
         """
         clock = timing(timeline)
         t = clock.now()
@@ -527,7 +535,9 @@ class Detector:
 
         pending: deque = deque()
         ahead: deque = deque()  # frames read to measure a new shot, not yet searched
-        recent: deque = deque(maxlen=HORIZON_FRAMES)  # the last frames, kept while the horizon is to be measured again
+        # copies of the last frames, kept while the shot's horizon is to be measured again
+        recent: deque = deque((np.array(f) for f in before) if tracker.state.horizon_retry is not None else (),
+                              maxlen=HORIZON_FRAMES)
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="search") as pool:
             try:
                 while (frame := ahead.popleft() if ahead else next(frames, None)) is not None:
@@ -543,7 +553,7 @@ class Detector:
                         det = self._for_state(tracker.state)
                         search = clock.timed("search", det.windows)
                         clock.lap("footage", t)
-                    elif retry is not None and index >= retry[1] and len(recent) == recent.maxlen:
+                    elif retry is not None and index >= retry[1] and len(recent) == recent.maxlen and self.config.car_horizon is not None:
                         # a shot whose horizon neither its lines nor its cars gave: its last frames, again
                         t = clock.now()
                         if self._measure_horizon(list(recent), tracker.state, workers, start=retry[0], end=index, keep_last=True):
@@ -551,7 +561,7 @@ class Detector:
                             search = clock.timed("search", det.windows)
                         clock.lap("footage", t)
                     if tracker.state.horizon_retry is not None:
-                        recent.append(frame)
+                        recent.append(np.array(frame))
                     else:
                         recent.clear()
                     around = None if cut else det._scheduled_around(tracker, index)

@@ -43,7 +43,7 @@ from joblib.externals.loky import ProcessPoolExecutor
 
 from ..deprecation import old_keywords
 from ..detections import Detections
-from ..detector import Detector
+from ..detector import HORIZON_FRAMES, Detector
 from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, one_line, require
 from ..io import (
     PARTIAL_SUFFIX, check_output_path, check_outputs, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet,
@@ -155,10 +155,14 @@ def track_chunk(
     tracker = Tracker(detector.config.tracker, state)
     frames = read_frames(path)
     try:
-        # The first chunk estimates the camera's horizon; the state carries it to the others.
+        # The first chunk estimates the camera's horizon; the state carries it to the others. A
+        # shot still without one is measured again on its last frames, which may lie before start.
+        first = max(0, start - HORIZON_FRAMES) if state.horizon_retry is not None else start
+        decoded = itertools.islice(frames, first, end)
+        before = list(itertools.islice(decoded, start - first))
         steps = [
             (index, found, backfill)
-            for _, index, found, backfill in detector.steps(itertools.islice(frames, start, end), tracker, workers or SEARCH_WORKERS)
+            for _, index, found, backfill in detector.steps(decoded, tracker, workers or SEARCH_WORKERS, before=before)
         ]
     finally:
         frames.close()
