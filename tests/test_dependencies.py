@@ -72,3 +72,15 @@ def test_pyproject_extras():
     assert extras["report"] == {"matplotlib"}
     # the README's test command installs what the tests import
     assert {"matplotlib", "scikit-image", "pandas"} <= extras["test"]
+
+
+def test_one_input_starts_without_the_process_pool_or_the_learning_library(tmp_path):
+    """What a single ``detect`` pays at start-up: no joblib (the process pool of ``--jobs``),
+    no scikit-learn (training only)."""
+    code = (
+        "import sys\n"
+        "from vehicle_detection.cli import main\n"
+        "assert main(['detect', 'test_images/test1.jpg', '--out', %r, '--boxes', %r]) == 0\n"
+        "print(sorted(m for m in ('joblib', 'sklearn') if m in sys.modules))\n"
+    ) % (str(tmp_path / "o.jpg"), str(tmp_path / "o.csv"))
+    assert run(code).splitlines()[-1] == "[]"

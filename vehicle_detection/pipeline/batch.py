@@ -39,7 +39,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from joblib.externals.loky import ProcessPoolExecutor
 
 from ..deprecation import old_keywords
 from ..detections import Detections
@@ -615,6 +614,8 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
     # loky (joblib's) starts fresh interpreters (no fork of a process with threads: numba, PyAV) that,
     # unlike multiprocessing's "spawn", do not re-run the caller's script: detect_many works in a
     # plain script without an ``if __name__ == "__main__":`` guard.
+    from joblib.externals.loky import ProcessPoolExecutor  # imported here: 0.07 s that a single input's start need not pay
+
     pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), initializer=init_worker, initargs=(threads,))
     futures: dict = {}
     try:
