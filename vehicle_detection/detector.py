@@ -466,9 +466,9 @@ class Detector:
 
         With :attr:`estimates_horizon`, the search bands follow the horizon estimated from the
         first frames (:meth:`for_footage`); where neither the road's lines nor the cars give one
-        there, the shot is measured again later, and the bands move when it is found. Where the footage cuts to another shot
-        (:meth:`shot_cut`), the tracker starts afresh and the new shot is measured again (bars,
-        overlays, light, horizon) from its first frames.
+        there, the shot is measured again later, and the bands move when it is found. Where the
+        footage cuts to another shot (:meth:`shot_cut`), the tracker starts afresh and the new
+        shot is measured again (bars, overlays, light, horizon) from its first frames.
 
         With a search schedule (``plan.full_search_every > 1``), the frames between full
         searches are searched around the tracks live when the frame is submitted (the tracker
@@ -553,7 +553,8 @@ class Detector:
                         det = self._for_state(tracker.state)
                         search = clock.timed("search", det.windows)
                         clock.lap("footage", t)
-                    elif retry is not None and index >= retry[1] and len(recent) == recent.maxlen and self.config.car_horizon is not None:
+                    elif (retry is not None and index >= retry[1] and len(recent) == recent.maxlen
+                          and self.config.car_horizon is not None):
                         # a shot whose horizon neither its lines nor its cars gave: its last frames, again
                         t = clock.now()
                         if self._measure_horizon(list(recent), tracker.state, workers, start=retry[0], end=index, keep_last=True):
