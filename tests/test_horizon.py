@@ -380,3 +380,28 @@ def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path, chunk):
     whole = process_video(video, None, detector=detector, progress=False, tracker=tracker)
     assert tracker.state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
     assert detect_chunked(video, chunk, detector=detector) == whole
+
+
+@pytest.mark.parametrize("name", ["test1.jpg", "test4.jpg", "test6.jpg"])
+def test_an_image_without_lines_takes_its_horizon_from_its_cars(monkeypatch, name):
+    """``detect --horizon auto`` on an image: its lines, else its cars (a camera tilted down by 0.1)."""
+    image = shifted(read_image(REPO / "test_images" / name), 72)
+    detector = Detector()
+    _without_lines(monkeypatch)
+    estimate, source = detector.image_horizon(image)
+    assert source == "cars" and estimate == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
+    assert Detector(config=detector.config.replace(car_horizon=None)).image_horizon(image) == (None, None)
+    assert detector.image_horizon(np.full((720, 1280, 3), 90, np.uint8)) == (None, None)  # no line, no car
+
+
+def test_an_image_in_black_bars_reads_the_horizon_of_its_picture(monkeypatch):
+    """Pillarboxed and letterboxed, the image's picture gives the same horizon (a fraction of
+    the picture's height), the bars searched nowhere."""
+    _without_lines(monkeypatch)
+    picture = shifted(read_image(REPO / "test_images" / "test1.jpg"), 72)
+    boxed = np.zeros((900, 1600, 3), np.uint8)
+    boxed[90:810, 160:1440] = picture
+    detector = Detector()
+    plain, _ = detector.image_horizon(picture)
+    inside, source = detector.image_horizon(boxed)
+    assert source == "cars" and inside == pytest.approx(plain, abs=0.01)

@@ -115,7 +115,7 @@ def test_horizon_auto_on_a_still_image_estimates_it_from_the_image(tmp_path, cap
 
     assert main(["detect", str(tmp_path / "tilted.png"), "--horizon", "auto", "--no-video", "--boxes", str(tmp_path / "t.csv")]) == 0
     out = capsys.readouterr().out
-    assert f"horizon: {estimate:.3f} of the height, estimated from the image" in out and "bands moved" in out
+    assert f"horizon: {estimate:.3f} of the height, estimated from the image's road lines" in out and "bands moved" in out
     expected = vd.Detector().with_horizon(estimate).detect_image(tilted)
     found = vd.read_boxes_csv(tmp_path / "t.csv")
     assert found.xyxy.tolist() == expected.xyxy.tolist() and len(found) > 0
@@ -123,11 +123,11 @@ def test_horizon_auto_on_a_still_image_estimates_it_from_the_image(tmp_path, cap
 
     assert main(["detect", str(tmp_path / "frame.png"), "--horizon", "auto", "--no-video", "--boxes", str(tmp_path / "f.csv")]) == 0
     out = capsys.readouterr().out
-    assert "estimated from the image" in out and "bands unchanged" in out  # the project camera's own horizon
+    assert "estimated from the image's road lines" in out and "bands unchanged" in out  # the project camera's own horizon
     assert vd.read_boxes_csv(tmp_path / "f.csv").xyxy.tolist() == vd.Detector().detect_image(frame).xyxy.tolist()
 
     assert main(["detect", str(tmp_path / "flat.png"), "--horizon", "auto", "--no-video", "--boxes", str(tmp_path / "n.csv")]) == 0
-    assert "horizon: no road lines to estimate it from in this image" in capsys.readouterr().out
+    assert "horizon: no road lines or cars to estimate it from in this image" in capsys.readouterr().out
     # Without --horizon auto an image is searched where the plan says, as documented, and nothing is said.
     assert main(["detect", str(tmp_path / "tilted.png"), "--no-video", "--boxes", str(tmp_path / "p.csv")]) == 0
     assert "horizon:" not in capsys.readouterr().out

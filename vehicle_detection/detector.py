@@ -248,6 +248,36 @@ class Detector:
         with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="horizon") as pool:
             return horizon_from_cars(pool.map(hits, jobs), height, rule)
 
+    def image_horizon(self, image: np.ndarray) -> tuple[float | None, str | None]:
+        """The horizon of one image, as a fraction of its height from the top, and where it was read.
+
+        From the image's road lines (:func:`~vehicle_detection.horizon.estimate_horizon`), else,
+        with ``config.car_horizon``, from the cars found in it with the bands at each candidate
+        horizon (inside the image's own black bars). What ``detect --horizon auto`` does for
+        images; :meth:`detect_image` itself searches where the plan says.
+
+        Parameters
+        ----------
+        image : ndarray of uint8, shape (H, W, 3)
+            An RGB image of a road ahead.
+
+        Returns
+        -------
+        (float or None, str or None)
+            The horizon and ``"lines"`` or ``"cars"``; ``(None, None)`` when neither gives one.
+        """
+        image = as_rgb_uint8(image, name="image")
+        estimate = estimate_horizon([image], min_frames=1)
+        if estimate is not None:
+            return estimate, "lines"
+        if self.config.car_horizon is None:
+            return None, None
+        state = TrackerState()
+        if self.config.auto_overlays:
+            state.overlays, state.overlays_searched = Overlays(image.shape[:2], active_area(image)), True
+        estimate = self._horizon_from_cars([image], state, workers=1)
+        return (estimate, "cars") if estimate is not None else (None, None)
+
     def _for_state(self, state: TrackerState) -> Detector:
         """This detector searching as the footage measured in ``state`` says."""
         det = self.with_horizon(state.horizon).with_gain(state.gain)

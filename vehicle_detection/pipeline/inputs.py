@@ -23,7 +23,7 @@ from ..io import plural
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, OutputError, UsageError, require
-from ..horizon import TOLERANCE, estimate_horizon
+from ..horizon import TOLERANCE
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
 from ..io.video import probe_video
@@ -78,9 +78,9 @@ class InputOptions:
         Other files the run reads (a model file, a camera file): no output may be one of them.
     image_horizon : bool
         Images (``--horizon auto``): move the search bands to the horizon estimated from each
-        image's own road lines (:func:`~vehicle_detection.horizon.estimate_horizon` with one
-        frame), when the detector estimates horizons; an image without usable lines is searched
-        where the plan says, and a note says so. False: images are searched where the plan says
+        image's own road lines, else from the cars found in it
+        (:meth:`~vehicle_detection.detector.Detector.image_horizon`), when the detector estimates
+        horizons; an image that gives none is searched where the plan says, and a note says so. False: images are searched where the plan says
         (a video's horizon is estimated from its first frames in any case).
     report : bool
         Also write the run's HTML report (:func:`~vehicle_detection.viz.report.write_html_report`),
@@ -528,11 +528,13 @@ def _run_images(path: Path, kind: str, images: list[Path], options: InputOptions
 def _image_horizon(detector: Detector, image, name: Path) -> tuple[Detector, str]:
     """The detector for one image at the horizon of its own road lines, and a note saying what was done."""
     reference = detector.config.plan.reference_horizon
-    estimate = estimate_horizon([image], min_frames=1)
+    estimate, source = detector.image_horizon(image)
     if estimate is None:
-        return detector, (f"{name}: horizon: no road lines to estimate it from in this image; searched where the plan "
+        what = "road lines or cars" if detector.config.car_horizon is not None else "road lines"
+        return detector, (f"{name}: horizon: no {what} to estimate it from in this image; searched where the plan "
                           f"says ({reference:.3f} of the height)")
+    source = "the image's road lines" if source == "lines" else "the cars found in the image"
     if abs(estimate - reference) <= TOLERANCE:
-        return detector, f"{name}: horizon: {estimate:.3f} of the height, estimated from the image (the plan's {reference:.3f}: bands unchanged)"
-    return detector.with_horizon(estimate), (f"{name}: horizon: {estimate:.3f} of the height, estimated from the image (the plan's "
+        return detector, f"{name}: horizon: {estimate:.3f} of the height, estimated from {source} (the plan's {reference:.3f}: bands unchanged)"
+    return detector.with_horizon(estimate), (f"{name}: horizon: {estimate:.3f} of the height, estimated from {source} (the plan's "
                                              f"{reference:.3f}); search bands moved accordingly")
