@@ -395,13 +395,18 @@ def test_an_image_without_lines_takes_its_horizon_from_its_cars(monkeypatch, nam
 
 
 def test_an_image_in_black_bars_reads_the_horizon_of_its_picture(monkeypatch):
-    """Pillarboxed and letterboxed, the image's picture gives the same horizon (a fraction of
-    the picture's height), the bars searched nowhere."""
-    _without_lines(monkeypatch)
-    picture = shifted(read_image(REPO / "test_images" / "test1.jpg"), 72)
-    boxed = np.zeros((900, 1600, 3), np.uint8)
-    boxed[90:810, 160:1440] = picture
+    """Letterboxed and pillarboxed, an image gives the horizon of its picture (a fraction of the
+    picture's height, where the search places its bands), from its cars and from its lines."""
+    def boxed(picture):
+        out = np.zeros((1120, 1600, 3), np.uint8)  # bars of 200 rows and 160 columns
+        out[200:920, 160:1440] = picture
+        return out
+
     detector = Detector()
-    plain, _ = detector.image_horizon(picture)
-    inside, source = detector.image_horizon(boxed)
-    assert source == "cars" and inside == pytest.approx(plain, abs=0.01)
+    lines = read_image(REPO / "test_images" / "test3.jpg")  # its lines give 0.589: 0.557 of the boxed frame
+    (inside, source), (plain, plain_source) = detector.image_horizon(boxed(lines)), detector.image_horizon(lines)
+    assert source == plain_source == "lines" and inside == pytest.approx(plain, abs=0.01)
+    _without_lines(monkeypatch)
+    cars = read_image(REPO / "test_images" / "test1.jpg")  # its cars give 0.587
+    (inside, source), (plain, plain_source) = detector.image_horizon(boxed(cars)), detector.image_horizon(cars)
+    assert source == plain_source == "cars" and inside == pytest.approx(plain, abs=0.01)

@@ -253,7 +253,8 @@ class Detector:
 
         From the image's road lines (:func:`~vehicle_detection.horizon.estimate_horizon`), else,
         with ``config.car_horizon``, from the cars found in it with the bands at each candidate
-        horizon (inside the image's own black bars). What ``detect --horizon auto`` does for
+        horizon; both inside the image's own black bars (with ``auto_overlays``), as a fraction
+        of the picture's height there, where the search places its bands. What ``detect --horizon auto`` does for
         images; :meth:`detect_image` itself searches where the plan says.
 
         Parameters
@@ -267,14 +268,14 @@ class Detector:
             The horizon and ``"lines"`` or ``"cars"``; ``(None, None)`` when neither gives one.
         """
         image = as_rgb_uint8(image, name="image")
-        estimate = estimate_horizon([image], min_frames=1)
+        state = TrackerState()
+        if self.config.auto_overlays:  # the search's bands are placed in the picture inside the bars
+            state.overlays, state.overlays_searched = Overlays(image.shape[:2], active_area(image)), True
+        estimate = estimate_horizon([state.overlays.crop(image) if state.overlays is not None else image], min_frames=1)
         if estimate is not None:
             return estimate, "lines"
         if self.config.car_horizon is None:
             return None, None
-        state = TrackerState()
-        if self.config.auto_overlays:
-            state.overlays, state.overlays_searched = Overlays(image.shape[:2], active_area(image)), True
         estimate = self._horizon_from_cars([image], state, workers=1)
         return (estimate, "cars") if estimate is not None else (None, None)
 
