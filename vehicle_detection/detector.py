@@ -249,13 +249,14 @@ class Detector:
             return horizon_from_cars(pool.map(hits, jobs), height, rule)
 
     def image_horizon(self, image: np.ndarray) -> tuple[float | None, str | None]:
-        """The horizon of one image, as a fraction of its height from the top, and where it was read.
+        """The horizon of one image, and where it was read.
 
         From the image's road lines (:func:`~vehicle_detection.horizon.estimate_horizon`), else,
         with ``config.car_horizon``, from the cars found in it with the bands at each candidate
-        horizon; both inside the image's own black bars (with ``auto_overlays``), as a fraction
-        of the picture's height there, where the search places its bands. What ``detect --horizon auto`` does for
-        images; :meth:`detect_image` itself searches where the plan says.
+        horizon. Both are read inside the image's own black bars (with ``auto_overlays``), as a
+        fraction of the height of the picture there, from the top: where the search places its
+        bands. What ``detect --horizon auto`` does for images; :meth:`detect_image` itself
+        searches where the plan says.
 
         Parameters
         ----------
