@@ -47,8 +47,7 @@ def main() -> None:
         t = time.perf_counter()
         cars = detector._horizon_from_cars(frames, state, 2)
         seconds = time.perf_counter() - t
-        cut = state.overlays
-        pictures = [brighten(cut.crop(f) if cut is not None else f, state.gain) for f in frames]
+        pictures = [brighten(p, state.gain) for p in detector._pictures(frames, state)]
         lines = estimate_horizon(pictures, min_frames=3)  # as the detector reads them: inside the bars, brightened
         show = lambda v: "none" if v is None else f"{v:.3f}"  # noqa: E731
         print(f"{name:40s} {show(lines):>7s} {show(cars):>7s}  {seconds:.2f}", flush=True)

@@ -193,8 +193,7 @@ class Detector:
         if overlays and (new_shot or not state.overlays_searched):
             state.overlays = _footage_overlays(first)
             state.overlays_searched = True
-        cut = state.overlays if overlays else None
-        pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in first]
+        pictures = self._pictures(first, state)
         if exposure and (new_shot or state.gain is None):
             levels = [picture_level(p) for p in pictures if np.ndim(p) == 3 and np.shape(p)[2] == 3]
             state.gain = exposure_gain(float(np.median(levels)), exposure) if levels else 1.0
@@ -208,9 +207,7 @@ class Detector:
         ``keep_last``, no estimate keeps the horizon ``state`` has. Where neither gives one, the
         shot is measured again later (:meth:`steps`), when it is twice as old: cars come and go.
         Whether an estimate was made."""
-        cut = state.overlays if self.config.auto_overlays else None
-        pictures = [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in frames]
-        pictures = [brighten(p, state.gain) if state.gain is not None else p for p in pictures]
+        pictures = [brighten(p, state.gain) if state.gain is not None else p for p in self._pictures(frames, state)]
         estimate, source = estimate_horizon(pictures, min_frames=min(3, len(frames)), workers=workers), "lines"
         if estimate is None and self.config.car_horizon is not None:
             estimate, source = self._horizon_from_cars(frames, state, workers), "cars"
@@ -223,6 +220,12 @@ class Detector:
         # fewer frames, a short first chunk, keeps the same schedule)
         state.horizon_retry = (start, start + 2 * max(HORIZON_FRAMES, end - start)) if again else None
         return estimate is not None
+
+    def _pictures(self, frames: list, state: TrackerState) -> list:
+        """``frames`` cut to the picture inside the footage's bars (``state.overlays``, with
+        ``auto_overlays``); frames of another size as they are."""
+        cut = state.overlays if self.config.auto_overlays else None
+        return [cut.crop(f) if cut is not None and np.shape(f)[:2] == cut.shape else f for f in frames]
 
     def _horizon_from_cars(self, first: list, state: TrackerState, workers: int) -> float | None:
         """The horizon of ``first`` read off the cars found with the bands at each candidate
@@ -272,7 +275,7 @@ class Detector:
         state = TrackerState()
         if self.config.auto_overlays:  # the search's bands are placed in the picture inside the bars
             state.overlays, state.overlays_searched = Overlays(image.shape[:2], active_area(image)), True
-        estimate = estimate_horizon([state.overlays.crop(image) if state.overlays is not None else image], min_frames=1)
+        estimate = estimate_horizon(self._pictures([image], state), min_frames=1)
         if estimate is not None:
             return estimate, "lines"
         if self.config.car_horizon is None:

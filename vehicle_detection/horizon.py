@@ -96,12 +96,18 @@ def vanishing_row(frame: np.ndarray) -> float | None:
         return None
     rows = py[ok]
     weights = (length[left][:, None] * length[right][None, :])[ok]
-    order = np.argsort(rows)
-    cum = np.cumsum(weights[order])
-    median = rows[order][np.searchsorted(cum, cum[-1] / 2)]
-    if weights[np.abs(rows - median) <= TOLERANCE * height].sum() < 0.5 * cum[-1]:
+    median, total = _weighted_median(rows, weights)
+    if weights[np.abs(rows - median) <= TOLERANCE * height].sum() < 0.5 * total:
         return None  # the crossings scatter: no single point the lines run to
     return float(median / height)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
+    """The value at which the cumulative weight of the sorted ``values`` reaches half the total,
+    and the total."""
+    order = np.argsort(values, kind="stable")
+    cum = np.cumsum(weights[order])
+    return values[order][np.searchsorted(cum, cum[-1] / 2)], cum[-1]
 
 
 def estimate_horizon(
@@ -263,9 +269,7 @@ def horizon_from_cars(
     row, weight = np.concatenate(rows), np.concatenate(weights)
     if len(row) < rule.min_hits:
         return None
-    order = np.argsort(row, kind="stable")
-    cum = np.cumsum(weight[order])
-    median = row[order][np.searchsorted(cum, cum[-1] / 2)]
-    if weight[np.abs(row - median) <= 2 * TOLERANCE].sum() <= 0.5 * cum[-1]:
+    median, total = _weighted_median(row, weight)
+    if weight[np.abs(row - median) <= 2 * TOLERANCE].sum() <= 0.5 * total:
         return None  # no majority of the cars agrees
     return float(median)
