@@ -22,6 +22,7 @@ from vehicle_detection.refine import (
     edge_offsets,
     fit_box_regressor,
     fit_sides,
+    hot_window_targets,
     jittered_windows,
 )
 from vehicle_detection.search import SearchPlan, SearchScale, search
@@ -100,6 +101,51 @@ def test_learned_refinement_tightens_windows_on_held_out_frames():
         before.append(box_iou(wins, boxes)[:, 0].mean())
         after.append(box_iou(refined, boxes)[:, 0].mean())
     assert np.mean(after) > np.mean(before) + 0.1
+
+
+def test_hot_window_targets_pair_each_window_with_the_vehicle_it_overlaps_most():
+    boxes = np.array([[100, 100, 200, 160], [300, 100, 380, 170]])
+    windows = np.array([
+        [100, 90, 180, 170],   # on the first car (IoU 0.61)
+        [110, 100, 150, 140],  # a part of it (IoU 0.27): dropped at 0.5
+        [290, 95, 370, 175],   # on the second (IoU 0.65)
+        [0, 0, 64, 64],        # on neither
+    ])
+    kept, theirs = hot_window_targets(windows, boxes, 0.5)
+    assert kept.tolist() == windows[[0, 2]].tolist() and theirs.tolist() == boxes[[0, 1]].tolist()
+    kept, theirs = hot_window_targets(windows, boxes, 0.25)
+    assert theirs.tolist() == boxes[[0, 0, 1]].tolist()
+    assert [a.shape for a in hot_window_targets(windows[:0], boxes, 0.5)] == [(0, 4), (0, 4)]
+    assert [a.shape for a in hot_window_targets(windows, boxes[:0], 0.5)] == [(0, 4), (0, 4)]
+    with pytest.raises(ValueError, match="min_iou"):
+        hot_window_targets(windows, boxes, 0.0)
+
+
+def _long_car(rng):
+    """A grey road with one dark car twice as wide as high (a car seen at an angle, its side
+    beside its rear), its box, and a window on its rear: square, as tall as the car, at its
+    left end; smaller than the car and off its centre, which jittering around it never draws."""
+    frame = rng.integers(90, 130, (240, 400, 3)).astype(np.uint8)
+    h = int(rng.integers(40, 70))
+    x, y = int(rng.integers(0, 400 - 2 * h)), int(rng.integers(0, 240 - h))
+    frame[y : y + h, x : x + 2 * h] = rng.integers(10, 40, 3)
+    frame[y + h // 5 : y + h // 2, x + h // 8 : x + h - h // 8] = 200  # the rear window
+    return frame, np.array([[x, y, x + 2 * h, y + h]]), np.array([[x, y, x + h, y + h]], np.float64)
+
+
+def test_accepted_windows_teach_the_refinement_what_jittering_does_not():
+    rng = np.random.default_rng(5)
+    train = [_long_car(rng) for _ in range(40)]
+    jitter_only = fit_box_regressor([t[:2] for t in train], SMALL, per_box=24, alpha=10.0, reference_height=240)
+    with_hot = fit_box_regressor(train, SMALL, per_box=24, alpha=10.0, reference_height=240, hot_iou=0.3)
+    from vehicle_detection.features import extract_features
+
+    iou = {"jitter": [], "hot": []}
+    for frame, boxes, rear in (_long_car(rng) for _ in range(15)):
+        feats = extract_features(crop_windows(frame, rear, SMALL.window), SMALL)
+        for name, reg in (("jitter", jitter_only), ("hot", with_hot)):
+            iou[name].append(box_iou(reg.refine(rear, feats, frame.shape), boxes)[0, 0])
+    assert np.mean(iou["hot"]) > np.mean(iou["jitter"]) + 0.1, iou
 
 
 def _with_regressor(model: VehicleClassifier, seed: int = 0) -> VehicleClassifier:
@@ -335,3 +381,33 @@ def test_side_fit_tightens_the_boxes_of_the_labelled_test_images(default_model, 
         gains.append(box_iou(cars, after).max(axis=1) - box_iou(cars, before).max(axis=1))
     gains = np.concatenate(gains)
     assert gains.mean() > 0.01 and (gains > 0).sum() > (gains < 0).sum()
+
+
+def test_box_refinement_learns_from_the_windows_the_detector_accepts(monkeypatch):
+    """``with_box_refinement`` hands the fit each labelled frame with the windows that the
+    model's own detector accepts in it (``hot_iou=None``: the frames and cars only)."""
+    from vehicle_detection.detector import Detector
+    from vehicle_detection.metrics.detection import load_annotations
+    from vehicle_detection.training import fit
+
+    seen = {}
+
+    def spy(samples, config, **kwargs):
+        seen[kwargs.get("hot_iou")] = [tuple(np.array(a, copy=True) for a in s) for s in samples]
+        return BoxRegressor(np.zeros((4, config.n_features)), np.zeros(4))
+
+    monkeypatch.setattr(fit, "fit_box_regressor", spy)
+    labels = load_annotations(Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json")
+    model = load_default_model()
+    refined = fit.with_box_refinement(model, [labels], hot_iou=0.5)
+    plain_model = fit.with_box_refinement(model, [labels])
+    assert refined.metrics["box_refinement"]["hot_iou"] == 0.5 and plain_model.metrics["box_refinement"]["hot_iou"] is None
+    with_windows, plain = seen[0.5], seen[None]
+    assert len(with_windows) == len(plain) == len(labels.frames) and all(len(s) == 2 for s in plain)
+    detector = Detector(model, model.detector_config)
+    accepted = 0
+    for (frame, cars, windows), (_, cars_plain), want in zip(with_windows, plain, labels.frames.values()):
+        assert np.array_equal(cars, want.cars) and np.array_equal(cars_plain, want.cars)
+        assert np.array_equal(windows, detector.windows(frame).xyxy)
+        accepted += len(windows)
+    assert accepted > 0

@@ -9,7 +9,9 @@ of the vehicle's edges from the window's edges in units of the window's size:
     d = [(x1* - x1) / w, (y1* - y1) / h, (x2* - x2) / w, (y2* - y2) / h]
 
 :func:`fit_box_regressor` learns it (ridge regression) from windows jittered around labelled
-vehicles in real frames; :meth:`BoxRegressor.refine` applies it. Refined boxes are clipped to
+vehicles in real frames and, optionally, as R-CNN learns its regression from its own proposals,
+from the windows the search accepts in those frames (:func:`hot_window_targets`);
+:meth:`BoxRegressor.refine` applies it. Refined boxes are clipped to
 the frame, so refinement never moves a box outside it.
 
 The regression learns the shape of the vehicles it was fitted on, and a camera it never saw has
@@ -33,9 +35,12 @@ import numpy as np
 from ._jit import njit
 from ._settings import JsonSettings, number_in
 from .features import FeatureConfig, extract_features
-from .geometry import as_boxes
+from .geometry import as_boxes, box_iou
 
-__all__ = ["BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "crop_windows", "working_frame", "fit_box_regressor"]
+__all__ = [
+    "BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "hot_window_targets",
+    "crop_windows", "working_frame", "fit_box_regressor",
+]
 
 #: Largest predicted edge offset, in window sizes: a window far off its vehicle is not trusted
 #: to move further than this.
@@ -159,6 +164,36 @@ def jittered_windows(box: np.ndarray, rng: np.random.Generator, n: int, *, size_
     return np.stack([cx - side / 2, cy - side / 2, cx + side / 2, cy + side / 2], axis=1)
 
 
+def hot_window_targets(windows: np.ndarray, boxes: np.ndarray, min_iou: float) -> tuple[np.ndarray, np.ndarray]:
+    """The search's windows that overlap a labelled vehicle, each with the vehicle it overlaps most.
+
+    Parameters
+    ----------
+    windows : array_like, shape (n, 4)
+        Windows the search accepted in a labelled frame, in frame pixels.
+    boxes : array_like, shape (k, 4)
+        The frame's labelled vehicles.
+    min_iou : float
+        Smallest IoU of a window with its vehicle, in (0, 1]: a window mostly off every vehicle
+        (on a neighbour, the road, a false positive) teaches nothing about edges.
+
+    Returns
+    -------
+    (ndarray, ndarray), shapes (m, 4) and (m, 4), float64
+        The windows kept and their vehicles' boxes, in the windows' order.
+    """
+    windows = as_boxes(windows, "windows").astype(np.float64)
+    boxes = as_boxes(boxes, "boxes").astype(np.float64)
+    if not 0 < min_iou <= 1:
+        raise ValueError(f"min_iou must be in (0, 1]; got {min_iou!r}")
+    if not len(windows) or not len(boxes):
+        return np.zeros((0, 4)), np.zeros((0, 4))
+    iou = box_iou(windows, boxes)
+    best = iou.argmax(axis=1)
+    keep = iou[np.arange(len(windows)), best] >= min_iou
+    return windows[keep], boxes[best[keep]]
+
+
 def working_frame(frame: np.ndarray, height: int) -> tuple[np.ndarray, float]:
     """``frame`` resized to ``height`` rows as the search sees it, and the factor applied."""
     f = height / frame.shape[0]
@@ -194,20 +229,28 @@ def crop_windows(frame: np.ndarray, windows: np.ndarray, side: int) -> np.ndarra
 
 
 def fit_box_regressor(
-    samples: Iterable[tuple[np.ndarray, np.ndarray]],
+    samples: Iterable[tuple],
     config: FeatureConfig,
     *,
     per_box: int = 24,
     alpha: float = 1.0,
     reference_height: int = 720,
     random_state: int = 0,
+    hot_iou: float = 0.5,
 ) -> BoxRegressor:
-    """Learn edge offsets from windows jittered around labelled vehicles.
+    """Learn edge offsets from windows around labelled vehicles.
+
+    Two kinds of window teach it. Windows jittered around each vehicle (:func:`jittered_windows`)
+    cover it at every position and size near its own. The windows the search accepted in the
+    same frame (:func:`hot_window_targets`) are the ones the regression will be asked about: on a
+    car seen at an angle they sit on its rear, smaller than the car and off its centre, which
+    jittering around the whole box never draws.
 
     Parameters
     ----------
-    samples : iterable of (frame, boxes)
-        RGB ``uint8`` frames ``(H, W, 3)`` and their labelled vehicle boxes ``(k, 4)``.
+    samples : iterable of (frame, boxes) or (frame, boxes, windows)
+        RGB ``uint8`` frames ``(H, W, 3)``, their labelled vehicle boxes ``(k, 4)`` and,
+        optionally, the windows the search accepted in them ``(n, 4)``, all in frame pixels.
     config : FeatureConfig
         The features of the classifier whose hot windows will be refined.
     per_box : int
@@ -216,6 +259,10 @@ def fit_box_regressor(
         Ridge penalty on standardised features.
     reference_height : int
         Frames are resized to this height first, as the search does.
+    random_state : int
+        Seed of the jitter.
+    hot_iou : float
+        Smallest IoU of an accepted window with a labelled vehicle for it to count.
 
     Returns
     -------
@@ -226,15 +273,19 @@ def fit_box_regressor(
 
     rng = np.random.default_rng(random_state)
     feats, targets = [], []
-    for frame, boxes in samples:
+    for frame, boxes, *hot in samples:
         boxes = as_boxes(boxes, "boxes").astype(np.float64)
         if not len(boxes):
             continue
         work, f = working_frame(frame, reference_height)
         boxes = boxes * f
         wins = np.concatenate([jittered_windows(b, rng, per_box) for b in boxes])
+        cars = np.repeat(boxes, per_box, axis=0)
+        if hot and hot[0] is not None:
+            found, theirs = hot_window_targets(np.asarray(hot[0], np.float64).reshape(-1, 4) * f, boxes, hot_iou)
+            wins, cars = np.concatenate([wins, found]), np.concatenate([cars, theirs])
         feats.append(extract_features(crop_windows(work, wins, config.window), config))
-        targets.append(edge_offsets(np.rint(wins), np.repeat(boxes, per_box, axis=0)))
+        targets.append(edge_offsets(np.rint(wins), cars))
     if not feats:
         raise ValueError("no labelled vehicles to learn box refinement from")
     x, y = np.concatenate(feats), np.concatenate(targets)
