@@ -22,6 +22,7 @@ from vehicle_detection.refine import (
     edge_offsets,
     fit_box_regressor,
     fit_sides,
+    beyond_jitter,
     hot_window_targets,
     jittered_windows,
 )
@@ -119,6 +120,32 @@ def test_hot_window_targets_pair_each_window_with_the_vehicle_it_overlaps_most()
     assert [a.shape for a in hot_window_targets(windows, boxes[:0], 0.5)] == [(0, 4), (0, 4)]
     with pytest.raises(ValueError, match="min_iou"):
         hot_window_targets(windows, boxes, 0.0)
+
+
+def test_beyond_jitter_finds_the_windows_jittering_never_draws():
+    rng = np.random.default_rng(6)
+    box = np.array([100.0, 100.0, 220.0, 180.0])  # larger side 120
+    drawn = jittered_windows(box, rng, 500)
+    assert not beyond_jitter(drawn, np.repeat(box[None], 500, axis=0)).any()
+    windows = np.array([
+        [100, 100, 180, 180],  # side 80 < 0.75 x 120
+        [60, 60, 260, 260],    # side 200 > 1.5 x 120 = 180
+        [130, 80, 230, 180],   # side 100, centre 20 px right = 0.2 sides: drawn
+        [140, 80, 240, 180],   # centre 30 px right = 0.3 sides: not drawn
+        [110, 90, 210, 190],   # side 100, centred: drawn
+    ], np.float64)
+    assert beyond_jitter(windows, np.repeat(box[None], 5, axis=0)).tolist() == [True, True, False, True, False]
+
+
+def test_accepted_windows_like_the_jittered_ones_change_nothing():
+    rng = np.random.default_rng(7)
+    train = [_long_car(rng) for _ in range(6)]
+    like = [(f, b, jittered_windows(b[0], np.random.default_rng(i), 5)) for i, (f, b, _) in enumerate(train)]
+    plain = fit_box_regressor([t[:2] for t in train], SMALL, per_box=8, alpha=10.0, reference_height=240)
+    same = fit_box_regressor(like, SMALL, per_box=8, alpha=10.0, reference_height=240, hot_iou=0.1)
+    other = fit_box_regressor(train, SMALL, per_box=8, alpha=10.0, reference_height=240, hot_iou=0.1)
+    assert np.array_equal(plain.coef, same.coef) and np.array_equal(plain.intercept, same.intercept)
+    assert not np.array_equal(plain.coef, other.coef)
 
 
 def _long_car(rng):

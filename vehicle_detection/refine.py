@@ -10,7 +10,8 @@ of the vehicle's edges from the window's edges in units of the window's size:
 
 :func:`fit_box_regressor` learns it (ridge regression) from windows jittered around labelled
 vehicles in real frames and, optionally, as R-CNN learns its regression from its own proposals,
-from the windows the search accepts in those frames (:func:`hot_window_targets`);
+from the windows the search accepts in those frames that the jitter never draws
+(:func:`hot_window_targets`, :func:`beyond_jitter`);
 :meth:`BoxRegressor.refine` applies it. Refined boxes are clipped to
 the frame, so refinement never moves a box outside it.
 
@@ -38,7 +39,7 @@ from .features import FeatureConfig, extract_features
 from .geometry import as_boxes, box_iou
 
 __all__ = [
-    "BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "hot_window_targets",
+    "BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "hot_window_targets", "beyond_jitter",
     "crop_windows", "working_frame", "fit_box_regressor",
 ]
 
@@ -147,7 +148,13 @@ def apply_offsets(windows: np.ndarray, offsets: np.ndarray, frame_shape: tuple[i
     return boxes
 
 
-def jittered_windows(box: np.ndarray, rng: np.random.Generator, n: int, *, size_range=(0.75, 1.5), shift: float = 0.2) -> np.ndarray:
+#: The sides of :func:`jittered_windows`, as multiples of the box's larger dimension, and how far
+#: their centres move, in sides.
+JITTER_SIZES = (0.75, 1.5)
+JITTER_SHIFT = 0.2
+
+
+def jittered_windows(box: np.ndarray, rng: np.random.Generator, n: int, *, size_range=JITTER_SIZES, shift: float = JITTER_SHIFT) -> np.ndarray:
     """``n`` square windows around one vehicle box, like those a sliding-window search accepts.
 
     The side is the box's larger dimension times a factor drawn from ``size_range``; the centre
@@ -192,6 +199,21 @@ def hot_window_targets(windows: np.ndarray, boxes: np.ndarray, min_iou: float) -
     best = iou.argmax(axis=1)
     keep = iou[np.arange(len(windows)), best] >= min_iou
     return windows[keep], boxes[best[keep]]
+
+
+def beyond_jitter(windows: np.ndarray, boxes: np.ndarray, size_range=JITTER_SIZES, shift: float = JITTER_SHIFT) -> np.ndarray:
+    """Which windows :func:`jittered_windows` never draws around their boxes: bool ``(n,)``.
+
+    A window is beyond the jitter when its side is outside ``size_range`` times its box's larger
+    dimension, or its centre is more than ``shift`` sides from the box's in either direction.
+    ``windows`` and ``boxes`` are paired row by row, ``(n, 4)`` each.
+    """
+    w = as_boxes(windows, "windows").astype(np.float64)
+    b = as_boxes(boxes, "boxes").astype(np.float64)
+    side = w[:, 2] - w[:, 0]
+    larger = np.maximum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
+    off = np.maximum(np.abs(w[:, 0] + w[:, 2] - b[:, 0] - b[:, 2]), np.abs(w[:, 1] + w[:, 3] - b[:, 1] - b[:, 3])) / 2
+    return (side < size_range[0] * larger) | (side > size_range[1] * larger) | (off > shift * side)
 
 
 def working_frame(frame: np.ndarray, height: int) -> tuple[np.ndarray, float]:
@@ -241,10 +263,11 @@ def fit_box_regressor(
     """Learn edge offsets from windows around labelled vehicles.
 
     Two kinds of window teach it. Windows jittered around each vehicle (:func:`jittered_windows`)
-    cover it at every position and size near its own. The windows the search accepted in the
-    same frame (:func:`hot_window_targets`) are the ones the regression will be asked about: on a
-    car seen at an angle they sit on its rear, smaller than the car and off its centre, which
-    jittering around the whole box never draws.
+    cover it at every position and size near its own. Of the windows the search accepted in the
+    same frame (:func:`hot_window_targets`), those the jitter never draws (:func:`beyond_jitter`)
+    are added: on a car seen at an angle they sit on its rear, smaller than the car and off its
+    centre. The others are like jittered windows already, and would only weigh the cameras with
+    many accepted windows a frame more.
 
     Parameters
     ----------
@@ -283,7 +306,8 @@ def fit_box_regressor(
         cars = np.repeat(boxes, per_box, axis=0)
         if hot and hot[0] is not None:
             found, theirs = hot_window_targets(np.asarray(hot[0], np.float64).reshape(-1, 4) * f, boxes, hot_iou)
-            wins, cars = np.concatenate([wins, found]), np.concatenate([cars, theirs])
+            new = beyond_jitter(found, theirs)
+            wins, cars = np.concatenate([wins, found[new]]), np.concatenate([cars, theirs[new]])
         feats.append(extract_features(crop_windows(work, wins, config.window), config))
         targets.append(edge_offsets(np.rint(wins), cars))
     if not feats:
