@@ -426,8 +426,8 @@ def test_box_refinement_learns_from_the_windows_the_detector_accepts(monkeypatch
     monkeypatch.setattr(fit, "fit_box_regressor", spy)
     labels = load_annotations(Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json")
     model = load_default_model()
-    refined = fit.with_box_refinement(model, [labels], hot_iou=0.5)
-    plain_model = fit.with_box_refinement(model, [labels])
+    refined = fit.with_box_refinement(model, [labels])
+    plain_model = fit.with_box_refinement(model, [labels], hot_iou=None)
     assert refined.metrics["box_refinement"]["hot_iou"] == 0.5 and plain_model.metrics["box_refinement"]["hot_iou"] is None
     with_windows, plain = seen[0.5], seen[None]
     assert len(with_windows) == len(plain) == len(labels.frames) and all(len(s) == 2 for s in plain)

@@ -194,7 +194,7 @@ def _searched_frames(model: VehicleClassifier, annotations) -> Iterator[tuple[np
 
 def with_box_refinement(
     model: VehicleClassifier, annotations, *, alpha: float = 1000.0, cluster_iou: float = 0.3, box_vote: float = 0.5,
-    hot_iou: float | None = None,
+    hot_iou: float | None = 0.5,
 ) -> VehicleClassifier:
     """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
 
@@ -212,12 +212,11 @@ def with_box_refinement(
     cluster_iou, box_vote : float
         Saved in the detector's tracker settings (:class:`~vehicle_detection.tracker.TrackerConfig`).
     hot_iou : float or None
-        The windows ``model``'s search accepts in the labelled frames, where they overlap a
-        labelled vehicle at this IoU or more, are learned from too
-        (:func:`~vehicle_detection.refine.fit_box_regressor`); None (the default, as the
-        embedded model is fitted): only windows jittered around the vehicles. With 0.5 the
-        refinement fits the camera it learns from better and the project camera's views
-        better; the highway dashcam's frames it never saw worse (writeup 3.4).
+        The windows ``model``'s search accepts in the labelled frames that overlap a labelled
+        vehicle at this IoU or more, and that jittering never draws, are learned from too
+        (:func:`~vehicle_detection.refine.fit_box_regressor`): the rear of a car seen at an
+        angle, for one. None: only windows jittered around the vehicles (the embedded model
+        before 2026-11-26).
     """
     t = time.perf_counter()
     if hot_iou is None:
