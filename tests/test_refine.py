@@ -107,15 +107,19 @@ def test_learned_refinement_tightens_windows_on_held_out_frames():
 def test_hot_window_targets_pair_each_window_with_the_vehicle_it_overlaps_most():
     boxes = np.array([[100, 100, 200, 160], [300, 100, 380, 170]])
     windows = np.array([
-        [100, 90, 180, 170],   # on the first car (IoU 0.61)
+        [100, 90, 180, 170],   # on the first car (IoU 0.63)
         [110, 100, 150, 140],  # a part of it (IoU 0.27): dropped at 0.5
-        [290, 95, 370, 175],   # on the second (IoU 0.65)
+        [290, 95, 370, 175],   # on the second (IoU 0.69)
         [0, 0, 64, 64],        # on neither
+        [190, 100, 330, 170],  # between them, more on the second (IoU 0.04 and 0.16)
     ])
+    assert box_iou(windows, boxes).round(2).tolist() == [[0.63, 0.0], [0.27, 0.0], [0.0, 0.69], [0.0, 0.0], [0.04, 0.16]]
     kept, theirs = hot_window_targets(windows, boxes, 0.5)
     assert kept.tolist() == windows[[0, 2]].tolist() and theirs.tolist() == boxes[[0, 1]].tolist()
     kept, theirs = hot_window_targets(windows, boxes, 0.25)
     assert theirs.tolist() == boxes[[0, 0, 1]].tolist()
+    kept, theirs = hot_window_targets(windows, boxes, 0.12)
+    assert kept.tolist() == windows[[0, 1, 2, 4]].tolist() and theirs.tolist() == boxes[[0, 0, 1, 1]].tolist()
     assert [a.shape for a in hot_window_targets(windows[:0], boxes, 0.5)] == [(0, 4), (0, 4)]
     assert [a.shape for a in hot_window_targets(windows, boxes[:0], 0.5)] == [(0, 4), (0, 4)]
     with pytest.raises(ValueError, match="min_iou"):
@@ -135,6 +139,8 @@ def test_beyond_jitter_finds_the_windows_jittering_never_draws():
         [110, 90, 210, 190],   # side 100, centred: drawn
     ], np.float64)
     assert beyond_jitter(windows, np.repeat(box[None], 5, axis=0)).tolist() == [True, True, False, True, False]
+    with pytest.raises(ValueError, match="hot_iou"):
+        fit_box_regressor([], SMALL, hot_iou=0.0)
 
 
 def test_accepted_windows_like_the_jittered_ones_change_nothing():
@@ -160,9 +166,15 @@ def _long_car(rng):
     return frame, np.array([[x, y, x + 2 * h, y + h]]), np.array([[x, y, x + h, y + h]], np.float64)
 
 
-def test_accepted_windows_teach_the_refinement_what_jittering_does_not():
+@pytest.mark.parametrize("zoom", [1, 2])
+def test_accepted_windows_teach_the_refinement_what_jittering_does_not(zoom):
+    """Frames of ``zoom`` times the reference height: the windows, in frame pixels, are scaled
+    to the frame the features are cut from."""
+    import cv2
+
     rng = np.random.default_rng(5)
     train = [_long_car(rng) for _ in range(40)]
+    train = [(cv2.resize(f, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST), b * zoom, w * zoom) for f, b, w in train]
     jitter_only = fit_box_regressor([t[:2] for t in train], SMALL, per_box=24, alpha=10.0, reference_height=240)
     with_hot = fit_box_regressor(train, SMALL, per_box=24, alpha=10.0, reference_height=240, hot_iou=0.3)
     from vehicle_detection.features import extract_features

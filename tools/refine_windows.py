@@ -3,9 +3,12 @@
     python tools/refine_windows.py [OC]
 
 Two ways to fit the refinement (:func:`vehicle_detection.training.with_box_refinement`):
-``hot_iou=None``, windows jittered around each labelled car (the embedded model's), and
+``hot_iou=None``, windows jittered around each labelled car (the embedded model's until
+2026-11-26), and
 ``hot_iou=0.5``, those plus the windows the model's own search accepts in the labelled frames
-where they overlap a car at IoU 0.5 or more (:func:`vehicle_detection.refine.hot_window_targets`).
+where they overlap a car at IoU 0.5 or more and jittering never draws them
+(:func:`vehicle_detection.refine.hot_window_targets`, :func:`vehicle_detection.refine.beyond_jitter`;
+the embedded model's now).
 
 1. **Project camera, two folds.** Clip A's labelled frames are split into halves 30 frames apart
    (0-110 and 140-250, ``dev_set/clip_A.json``; ``clip_A_tracks.json``'s frames 140-149 with the

@@ -177,9 +177,9 @@ def hot_window_targets(windows: np.ndarray, boxes: np.ndarray, min_iou: float) -
     Parameters
     ----------
     windows : array_like, shape (n, 4)
-        Windows the search accepted in a labelled frame, in frame pixels.
+        Windows the search accepted in a labelled frame.
     boxes : array_like, shape (k, 4)
-        The frame's labelled vehicles.
+        The frame's labelled vehicles, in the same pixels.
     min_iou : float
         Smallest IoU of a window with its vehicle, in (0, 1]: a window mostly off every vehicle
         (on a neighbour, the road, a false positive) teaches nothing about edges.
@@ -201,16 +201,28 @@ def hot_window_targets(windows: np.ndarray, boxes: np.ndarray, min_iou: float) -
     return windows[keep], boxes[best[keep]]
 
 
-def beyond_jitter(windows: np.ndarray, boxes: np.ndarray, size_range=JITTER_SIZES, shift: float = JITTER_SHIFT) -> np.ndarray:
-    """Which windows :func:`jittered_windows` never draws around their boxes: bool ``(n,)``.
+def beyond_jitter(windows: np.ndarray, boxes: np.ndarray, *, size_range=JITTER_SIZES, shift: float = JITTER_SHIFT) -> np.ndarray:
+    """Which windows :func:`jittered_windows` never draws around their boxes.
 
-    A window is beyond the jitter when its side is outside ``size_range`` times its box's larger
-    dimension, or its centre is more than ``shift`` sides from the box's in either direction.
-    ``windows`` and ``boxes`` are paired row by row, ``(n, 4)`` each.
+    A window is beyond the jitter when its side (the larger one, for a window that is not
+    square) is outside ``size_range`` times its box's larger dimension, or its centre is more
+    than ``shift`` sides from the box's in either direction.
+
+    Parameters
+    ----------
+    windows, boxes : array_like, shape (n, 4)
+        Windows and the boxes they are paired with, row by row, in the same pixels.
+    size_range : (float, float)
+    shift : float
+        As :func:`jittered_windows` takes them.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
     """
     w = as_boxes(windows, "windows").astype(np.float64)
     b = as_boxes(boxes, "boxes").astype(np.float64)
-    side = w[:, 2] - w[:, 0]
+    side = np.maximum(w[:, 2] - w[:, 0], w[:, 3] - w[:, 1])
     larger = np.maximum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
     off = np.maximum(np.abs(w[:, 0] + w[:, 2] - b[:, 0] - b[:, 2]), np.abs(w[:, 1] + w[:, 3] - b[:, 1] - b[:, 3])) / 2
     return (side < size_range[0] * larger) | (side > size_range[1] * larger) | (off > shift * side)
@@ -294,6 +306,8 @@ def fit_box_regressor(
     from sklearn.linear_model import Ridge
     from sklearn.preprocessing import StandardScaler
 
+    if not 0 < hot_iou <= 1:
+        raise ValueError(f"hot_iou must be in (0, 1]; got {hot_iou!r}")
     rng = np.random.default_rng(random_state)
     feats, targets = [], []
     for frame, boxes, *hot in samples:

@@ -177,8 +177,9 @@ def train(
 
 def _searched_frames(model: VehicleClassifier, annotations) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``(frame, cars, windows)`` of every labelled frame: the windows ``model``'s detector
-    accepts there, searched as ``detect`` searches (a video at the horizon, bars and light
-    measured on its first frames; an image on its own)."""
+    accepts there (none searched in a frame without cars). A video is searched at the horizon,
+    bars and light measured on its first frames, as ``detect`` starts it; unlike ``detect``, they
+    are not measured again after a cut between shots. An image is searched on its own."""
     from ..detector import Detector  # the search, only when labels are given
     from ..io.video import read_frames
 
@@ -189,7 +190,7 @@ def _searched_frames(model: VehicleClassifier, annotations) -> Iterator[tuple[np
             with closing(read_frames(source)) as frames:
                 detector, _ = detector.for_footage(frames, detector.new_tracker())
         for _, frame, labels in labelled_frames(ann):
-            yield frame, labels.cars, detector.windows(frame).xyxy
+            yield frame, labels.cars, detector.windows(frame).xyxy if len(labels.cars) else np.zeros((0, 4), np.int64)
 
 
 def with_box_refinement(
@@ -218,6 +219,8 @@ def with_box_refinement(
         angle, for one. None: only windows jittered around the vehicles (the embedded model
         before 2026-11-26).
     """
+    if hot_iou is not None and not 0 < hot_iou <= 1:
+        raise ValueError(f"hot_iou must be in (0, 1] or None; got {hot_iou!r}")
     t = time.perf_counter()
     if hot_iou is None:
         samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
