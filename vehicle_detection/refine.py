@@ -204,9 +204,9 @@ def hot_window_targets(windows: np.ndarray, boxes: np.ndarray, min_iou: float) -
 def beyond_jitter(windows: np.ndarray, boxes: np.ndarray, *, size_range=JITTER_SIZES, shift: float = JITTER_SHIFT) -> np.ndarray:
     """Which windows :func:`jittered_windows` never draws around their boxes.
 
-    A window is beyond the jitter when its side (the larger one, for a window that is not
-    square) is outside ``size_range`` times its box's larger dimension, or its centre is more
-    than ``shift`` sides from the box's in either direction.
+    A window is beyond the jitter when its side (its width: the search's windows are square,
+    up to their rounding to whole pixels) is outside ``size_range`` times its box's larger
+    dimension, or its centre is more than ``shift`` sides from the box's in either direction.
 
     Parameters
     ----------
@@ -222,7 +222,7 @@ def beyond_jitter(windows: np.ndarray, boxes: np.ndarray, *, size_range=JITTER_S
     """
     w = as_boxes(windows, "windows").astype(np.float64)
     b = as_boxes(boxes, "boxes").astype(np.float64)
-    side = np.maximum(w[:, 2] - w[:, 0], w[:, 3] - w[:, 1])
+    side = w[:, 2] - w[:, 0]
     larger = np.maximum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
     off = np.maximum(np.abs(w[:, 0] + w[:, 2] - b[:, 0] - b[:, 2]), np.abs(w[:, 1] + w[:, 3] - b[:, 1] - b[:, 3])) / 2
     return (side < size_range[0] * larger) | (side > size_range[1] * larger) | (off > shift * side)
