@@ -44,36 +44,46 @@ CAMERAS = {
     # dusk on the tilted cameras: no road lines to find the horizon by, and the bands must move
     "dusk_0.2_tilted_down_960x540": ((80, 90, 1200, 720), (960, 540)),
     "dusk_0.2_tilted_up_960x472": ((0, 0, 1280, 630), (960, 472)),
+    # a 4:3 picture between black pillarbox bars in a small 16:9 frame, at dusk: the picture 480x360
+    # between bars of 80 columns, in a 640x360 frame
+    "dusk_0.35_pillarbox_640x360": ((160, 0, 1120, 720), (480, 360)),
 }
+#: name: columns of black bar added on each side of the view (its frame that much wider)
+PILLARBOX = {"dusk_0.35_pillarbox_640x360": 80}
 #: name: (light kept, noise standard deviation in levels) of the views with less light
-LIGHT = {"dusk_0.35_1280x720": (0.35, 4.0), "dusk_0.2_1280x720": (0.2, 6.0), "dusk_0.2_tilted_down_960x540": (0.2, 6.0),
+LIGHT = {"dusk_0.35_1280x720": (0.35, 4.0), "dusk_0.35_pillarbox_640x360": (0.35, 4.0), "dusk_0.2_1280x720": (0.2, 6.0), "dusk_0.2_tilted_down_960x540": (0.2, 6.0),
          "dusk_0.2_tilted_up_960x472": (0.2, 6.0)}
 
 
-def _move(box, crop, size):
+def _move(box, crop, size, bar=0):
+    """``box`` moved into the view of ``crop`` resized to ``size``, then ``bar`` columns right."""
     x0, y0, x1, y1 = crop
     sx, sy = size[0] / (x1 - x0), size[1] / (y1 - y0)
     out = [(box[0] - x0) * sx, (box[1] - y0) * sy, (box[2] - x0) * sx, (box[3] - y0) * sy]
     full = (out[2] - out[0]) * (out[3] - out[1])
     clipped = [max(0.0, out[0]), max(0.0, out[1]), min(size[0], out[2]), min(size[1], out[3])]
     inside = max(0.0, clipped[2] - clipped[0]) * max(0.0, clipped[3] - clipped[1])
-    return [int(round(v)) for v in clipped], (inside / full if full > 0 else 0.0)
+    return [int(round(v)) + (bar if k % 2 == 0 else 0) for k, v in enumerate(clipped)], (inside / full if full > 0 else 0.0)
 
 
 def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
     import vehicle_detection as vd
 
     x0, y0, x1, y1 = crop
+    bar = PILLARBOX.get(name, 0)
+    frame_size = (size[0] + 2 * bar, size[1])
     video = out_dir / f"{name}.mp4"
     frames = vd.read_frames(DEV_SET / "project_video_clip_A.mp4")
     light, noise = LIGHT.get(name, (1.0, 0.0))
     rng = np.random.default_rng(0)
     try:
-        with vd.VideoWriter(video, 25, size, overwrite=True, crf=18) as writer:
+        with vd.VideoWriter(video, 25, frame_size, overwrite=True, crf=18) as writer:
             for frame in frames:
                 view = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), size, interpolation=cv2.INTER_AREA)
                 if name in LIGHT:
                     view = np.clip(np.rint(view * light + rng.normal(0.0, noise, view.shape)), 0, 255).astype(np.uint8)
+                if bar:
+                    view = cv2.copyMakeBorder(view, 0, 0, bar, bar, cv2.BORDER_CONSTANT, value=(0, 0, 0))
                 writer.write(view)
     finally:
         frames.close()
@@ -84,9 +94,9 @@ def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
         doc["camera"] = name  # evaluate pools (and --report names) the files by camera
         for entry in doc["frames"].values():
             cars, ids = [], []
-            ignore = [b for b, share in (_move(b, crop, size) for b in entry.get("ignore", [])) if share > 0]
+            ignore = [b for b, share in (_move(b, crop, size, bar) for b in entry.get("ignore", [])) if share > 0]
             for i, box in enumerate(entry["cars"]):
-                moved, share = _move(box, crop, size)
+                moved, share = _move(box, crop, size, bar)
                 if share >= 0.5:
                     cars.append(moved)
                     if "ids" in entry:
