@@ -106,3 +106,55 @@ def test_a_search_compiles_each_kernel_for_one_signature():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[1])
     assert out.stdout.strip() == "[1, 1, 1, 1, 1, 1, 1]", out.stdout + out.stderr
+
+
+def test_loading_the_kernels_leaves_nothing_for_the_first_frame_to_compile(tmp_path):
+    """``load_search_kernels`` runs the search's own path on a blank band with every window hot:
+    in a fresh cache it compiles every kernel a search of a real frame with cars needs, so that
+    search compiles none (a kernel it missed would be compiled on the first frame, not meanwhile)."""
+    code = (
+        "from vehicle_detection import _warmup, load_default_model\n"
+        "from vehicle_detection.io.images import read_image\n"
+        "import vehicle_detection.search as S\n"
+        "m = load_default_model()\n"
+        "_warmup.load_search_kernels(m)\n"
+        "print('loaded:' + ','.join(sorted(seen.names)))\n"
+        "seen.names.clear()\n"
+        "found = S.search(read_image('test_images/test1.jpg'), m)\n"
+        "assert len(found), 'test1 has cars'\n"
+    )
+    compiled, _ = _compiled_in_a_fresh_cache(tmp_path, code)
+    loaded = next(w for w in compiled if w.startswith("loaded:"))
+    every = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS
+             + _warmup._HELPER_REFINE_KERNELS}
+    assert set(loaded.removeprefix("loaded:").split(",")) >= every
+    assert compiled == {loaded}  # the real frame's search compiled nothing
+
+
+def test_a_second_caller_waits_for_the_kernels_being_loaded(default_model, monkeypatch):
+    """Two threads ask at once: the second returns only when the first has loaded them."""
+    import threading
+    import time
+
+    started, release, order = threading.Event(), threading.Event(), []
+
+    def slow_score(*args, **kwargs):
+        started.set()
+        release.wait(10)
+        order.append("loaded")
+
+    monkeypatch.setattr(_warmup, "_score_band", slow_score)
+    monkeypatch.setattr(_warmup, "_LOADED", {})
+    first = threading.Thread(target=_warmup.load_search_kernels, args=(default_model,))
+    first.start()
+    assert started.wait(10)
+    second = threading.Thread(target=lambda: (_warmup.load_search_kernels(default_model), order.append("second")))
+    second.start()
+    time.sleep(0.2)
+    assert order == []  # still waiting
+    release.set()
+    first.join(10)
+    second.join(10)
+    assert order == ["loaded", "second"]
+    _warmup.load_search_kernels(default_model)  # loaded: at once, nothing scored again
+    assert order == ["loaded", "second"]

@@ -13,8 +13,9 @@ compiles its own on first use. No kernel allocates an array (work arrays are pas
 numba then has no allocation code of its own to compile first, which is a third of a second.
 The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
 (in the helper only: nothing is replaced here, so a search running in another thread meanwhile
-is unaffected). On a warm cache nothing happens here (the kernels load on first use), nor
-with a single core. On a machine busy with other work the two processes share what is free,
+is unaffected). On a warm cache nothing happens here, nor with a single core; the kernels are
+then loaded from the cache by :func:`load_search_kernels`, which a video's run calls in a thread
+while its first frames are read and measured. On a machine busy with other work the two processes share what is free,
 which is never slower than compiling everything here (the helper costs its imports, about
 0.3 s of CPU). The results never depend on this: a kernel the helper did not provide in time
 is compiled here as usual.
@@ -36,10 +37,11 @@ from . import _jit
 from .classifier import load_default_model
 from .search import _band, _band_features, _refine_hog, _score_band, _working_frame, search
 
-__all__ = ["compile_search_kernels"]
+__all__ = ["compile_search_kernels", "load_search_kernels"]
 
 _DONE = threading.Event()
 _LOCK = threading.Lock()
+_LOADED: dict = {}  # (window border, refines or not): set once that search's kernels are loaded
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
     ("search", "_block_map", "features._block_map-"),  # defined in features, called through search
@@ -159,6 +161,34 @@ def compile_search_kernels(model) -> None:
             if helper.poll() is None:
                 helper.kill()
                 helper.wait()
+
+
+def load_search_kernels(model) -> None:
+    """Load every kernel of ``model``'s search into this process: from the cache, else compiled.
+
+    A blank band is scored with every window counted as hot, by the search's own code path, so
+    that the kernels the first frame needs are ready. Loading them from a warm cache also starts
+    numba (its registries, and SciPy's BLAS, which numba imports): about a second of one core,
+    mostly in Python, which :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread
+    while the first frames are read and measured. Later calls for the same kind of search return
+    at once. The results never depend on this.
+    """
+    plan = model.detector_config.plan
+    key = (plan.window_border, model.box_regressor is not None)
+    with _LOCK:
+        loaded = _LOADED.get(key)
+        first = loaded is None
+        if first:
+            loaded = _LOADED[key] = threading.Event()
+    if not first:
+        loaded.wait()  # another thread is loading them: ready when it is done
+        return
+    try:
+        band = _blank_band(model)
+        if band is not None:
+            _score_band(band, model, reuse=False, refine_above=-np.inf, frame=plan.window_border == "frame")
+    finally:
+        loaded.set()
 
 
 def _helper() -> None:

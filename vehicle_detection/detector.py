@@ -27,7 +27,7 @@ from contextlib import closing
 
 import numpy as np
 
-from ._warmup import compile_search_kernels
+from ._warmup import compile_search_kernels, load_search_kernels
 from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
@@ -552,9 +552,13 @@ class Detector:
         clock = timing(timeline)
         t = clock.now()
         compile_search_kernels(self.model)  # on a fresh install, on both cores
-        t = clock.lap("warmup", t)
-        det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
-        clock.lap("footage", t)
+        compiled = clock.now()
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kernels") as loader:
+            loaded = loader.submit(load_search_kernels, self.model)  # while the first frames are read and measured
+            det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
+            measured = clock.lap("footage", compiled)
+            loaded.result()
+        clock.add("warmup", (compiled - t) + (clock.now() - measured))
         remeasure = self.config.auto_overlays or self.config.exposure is not None or self.estimates_horizon
         search = clock.timed("search", det.windows)
 

@@ -16,7 +16,9 @@ stage                   thread       what
 ``to_rgb``              decoder      convert it to RGB (and turn it upright)
 ``decoder_wait``        decoder      wait for room in the queue to the consumer
 ``read_wait``           main         wait for the decoder's next frame
-``warmup``              main         load (or compile) the search kernels, once a run
+``warmup``              main         compile the search kernels (a fresh install) and wait
+                                     for a thread to load them (it loads them while the
+                                     first frames are measured), once a run
 ``footage``             main         measure the first frames (horizon, black bars), once
                                      a run; their ``read_wait`` is part of it
 ``prepare``             helper       undistort, find lanes (only with a camera)
@@ -154,14 +156,17 @@ class Timeline:
 
 
 class _Untimed:
-    """The clock of a run without a :class:`Timeline`: :meth:`Timeline.now`, :meth:`~Timeline.lap`
-    and :meth:`~Timeline.timed` that measure nothing, so the stages need no ``None`` checks."""
+    """The clock of a run without a :class:`Timeline`: :meth:`Timeline.now`, :meth:`~Timeline.add`,
+    :meth:`~Timeline.lap` and :meth:`~Timeline.timed` that measure nothing, so the stages need no ``None`` checks."""
 
     __slots__ = ()
 
     @staticmethod
     def now() -> float:
         return 0.0
+
+    def add(self, stage: str, seconds: float) -> None:
+        pass
 
     def lap(self, stage: str, since: float) -> float:
         return 0.0
