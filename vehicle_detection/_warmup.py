@@ -14,8 +14,8 @@ numba then has no allocation code of its own to compile first, which is a third 
 The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
 (in the helper only: nothing is replaced here, so a search running in another thread meanwhile
 is unaffected). On a warm cache nothing happens here, nor with a single core; the kernels are
-then loaded from the cache by :func:`load_search_kernels`, which a video's run calls in a thread
-while its first frames are read and measured. On a machine busy with other work the two processes share what is free,
+then loaded from the cache by :func:`load_search_kernels`. A video's run calls the two, in this
+order, in a thread of its own while its first frames are read and measured. On a machine busy with other work the two processes share what is free,
 which is never slower than compiling everything here (the helper costs its imports, about
 0.3 s of CPU). The results never depend on this: a kernel the helper did not provide in time
 is compiled here as usual.
@@ -170,12 +170,13 @@ def load_search_kernels(model) -> None:
     that the kernels the first frame needs are ready. Loading them from a warm cache also starts
     numba (its registries, and SciPy's BLAS, which numba imports): about a second of one core,
     mostly in Python, which :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread
-    while the first frames are read and measured. Later calls for the same kind of search return
-    at once. The results never depend on this.
+    (after :func:`compile_search_kernels`) while the first frames are read and measured. A call
+    while another thread loads them, or compiles them, waits for it; later calls for the same
+    kind of search return at once. The results never depend on this.
     """
     plan = model.detector_config.plan
     key = (plan.window_border, model.box_regressor is not None)
-    with _LOCK:
+    with _LOCK:  # held by compile_search_kernels while it compiles
         loaded = _LOADED.get(key)
         first = loaded is None
         if first:

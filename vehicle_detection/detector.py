@@ -52,6 +52,12 @@ HORIZON_FRAMES = 12
 MASKED_SHARE = 0.35
 
 
+def _prepare_kernels(model: VehicleClassifier) -> None:
+    """Compile the search kernels on both cores (a fresh install), then load them all."""
+    compile_search_kernels(model)
+    load_search_kernels(model)
+
+
 def _footage_overlays(first: list) -> Overlays | None:
     """The overlays of a video's first frames, measured on those up to the first that is not RGB
     ``uint8`` of the first one's shape (the search reports that one, where it always has)."""
@@ -232,6 +238,7 @@ class Detector:
         horizon of ``config.car_horizon`` (:func:`~vehicle_detection.horizon.horizon_from_cars`),
         searching as ``state`` says otherwise (bars, overlays, light); None if they do not agree."""
         rule = self.config.car_horizon
+        load_search_kernels(self.model)  # they may be compiled or loaded in another thread now: wait for them
         frames = [f for f in first if np.shape(f) == np.shape(first[0]) and np.asarray(f).dtype == np.uint8]
         if not frames or np.ndim(frames[0]) != 3 or np.shape(frames[0])[2] != 3:
             return None
@@ -551,14 +558,12 @@ class Detector:
         """
         clock = timing(timeline)
         t = clock.now()
-        compile_search_kernels(self.model)  # on a fresh install, on both cores
-        compiled = clock.now()
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kernels") as loader:
-            loaded = loader.submit(load_search_kernels, self.model)  # while the first frames are read and measured
+            ready = loader.submit(_prepare_kernels, self.model)  # while the first frames are read and measured
             det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
-            measured = clock.lap("footage", compiled)
-            loaded.result()
-        clock.add("warmup", (compiled - t) + (clock.now() - measured))
+            t = clock.lap("footage", t)
+            ready.result()
+        clock.lap("warmup", t)
         remeasure = self.config.auto_overlays or self.config.exposure is not None or self.estimates_horizon
         search = clock.timed("search", det.windows)
 

@@ -16,9 +16,9 @@ stage                   thread       what
 ``to_rgb``              decoder      convert it to RGB (and turn it upright)
 ``decoder_wait``        decoder      wait for room in the queue to the consumer
 ``read_wait``           main         wait for the decoder's next frame
-``warmup``              main         compile the search kernels (a fresh install) and wait
-                                     for a thread to load them (it loads them while the
-                                     first frames are measured), once a run
+``warmup``              main         wait for the search kernels, once a run: a thread
+                                     compiles them (a fresh install) and loads them
+                                     while the first frames are measured
 ``footage``             main         measure the first frames (horizon, black bars), once
                                      a run; their ``read_wait`` is part of it
 ``prepare``             helper       undistort, find lanes (only with a camera)
