@@ -3,22 +3,25 @@
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
 kernels on a laptop core, after about a second of numba's own start. On a cold cache,
 :func:`compile_search_kernels` starts a helper process that compiles the HOG block kernel
-(normalising the blocks) and the box refinement's colour kernel into the cache while this
-process compiles the others: the HOG cells, the two colour kernels, the windows' HOG scores and
-the refinement's HOG part (a real band's scoring with its blocks left zero, on a blank frame,
-so with exactly the argument types of a real search); this process then loads the helper's
-kernels from the cache. The helper also pays its imports and numba's start, so it takes the
-smaller share of the kernels. The kernels are those of the default search (``window_border="frame"``); a plan with ``"crop"``
-compiles its own on first use. No kernel allocates an array (work arrays are passed in):
-numba then has no allocation code of its own to compile first, which is a third of a second.
-The helper runs a real search on a blank frame with this process's kernels replaced by no-ops
-(in the helper only: nothing is replaced here, so a search running in another thread meanwhile
-is unaffected). On a warm cache nothing happens here, nor with a single core; the kernels are
-then loaded from the cache by :func:`load_search_kernels`. A video's run calls the two, in this
-order, in a thread of its own while its first frames are read and measured. On a machine busy with other work the two processes share what is free,
-which is never slower than compiling everything here (the helper costs its imports, about
-0.3 s of CPU). The results never depend on this: a kernel the helper did not provide in time
-is compiled here as usual.
+(normalising the blocks), the windows' colour scores and the box refinement's colour kernel
+into the cache while this process compiles the others: the HOG cells, the colour sums, the
+windows' HOG scores and the refinement's HOG part (the search's own functions on a blank band,
+its blocks left zero, so with exactly the argument types of a real search); this process then
+loads the helper's kernels from the cache. The helper also pays its imports and numba's start,
+so it takes the smaller share of the kernels. The kernels are those of the default search
+(``window_border="frame"``); a plan with ``"crop"`` compiles its own on first use. No kernel
+allocates an array (work arrays are passed in): numba then has no allocation code of its own
+to compile first, which is a third of a second. The helper runs a real search on a blank frame
+with this process's kernels replaced by no-ops (in the helper only: nothing is replaced here,
+so a search running in another thread meanwhile is unaffected). On a machine busy with other
+work the two processes share what is free, which is never slower than compiling everything
+here (the helper costs its imports, about 0.3 s of CPU). The results never depend on this: a
+kernel the helper did not provide in time is compiled here as usual.
+
+On a warm cache nothing happens here, nor with a single core. Either way the kernels are then
+loaded by :func:`load_search_kernels`. A video's run calls the two, in this order, in a thread
+of its own while its first frames are read and measured
+(:meth:`~vehicle_detection.detector.Detector.steps`).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import numpy as np
 
 from . import _jit
 from .classifier import load_default_model
-from .search import _band, _band_features, _refine_hog, _score_band, _working_frame, search
+from .search import _band, _band_features, _kernel_weights, _margins, _refine_hog, _score_band, _working_frame, search
 
 __all__ = ["compile_search_kernels", "load_search_kernels"]
 
@@ -45,11 +48,11 @@ _LOADED: dict = {}  # (window border, refines or not): set once that search's ke
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
     ("search", "_block_map", "features._block_map-"),  # defined in features, called through search
+    ("search", "_score_colour", "search._score_colour-"),
 )
 _MAIN_KERNELS = (
     ("search", "_region_cells", "features._region_cells-"),
     ("search", "_colour_sums", "search._colour_sums-"),
-    ("search", "_score_colour", "search._score_colour-"),
     ("search", "_score_blocks", "search._score_blocks-"),
 )
 
@@ -116,15 +119,21 @@ def _blank_band(model):
 
 
 def _compile_main(model) -> None:
-    """This process's half: the cells, colour and window-score kernels and the refinement's HOG
-    part, by the real code path, nothing replaced."""
+    """This process's half: the cells, colour sums and HOG window-score kernels and the
+    refinement's HOG part, by the search's own functions with the arguments a search gives them,
+    nothing replaced."""
     band = _blank_band(model)
     if band is None:
         return
     frame = model.detector_config.plan.window_border == "frame"
-    _score_band(band, model, reuse=False, hog_blocks=False, frame=frame)
-    if frame and model.box_regressor is not None:
-        feats = _band_features(band, model, lambda name, shape, dtype=np.float64: np.empty(shape, dtype), False, frame)
+    feats = _band_features(band, model, lambda name, shape, dtype=np.float64: np.empty(shape, dtype), False, frame)
+    if not frame:  # a plan searching crops: its colour scores here too
+        _margins(feats, model, band.rows, band.cols)
+        return
+    # the HOG part of the margins (search._margins); the colour part compiles in the helper
+    _module("search")._score_blocks(feats.blocks, _kernel_weights(model).hog, band.rows, band.cols,
+                                    np.zeros((len(band.rows), len(band.cols))))
+    if model.box_regressor is not None:
         index = np.arange(1)
         _refine_hog(feats, model, band.rows[index // len(band.cols)], band.cols[index % len(band.cols)], np.zeros((1, 4)))
 
