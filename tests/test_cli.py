@@ -679,3 +679,23 @@ def test_evaluate_pools_files_of_one_camera(tmp_path, capsys):
     assert front["at_iou_0.5"]["fp"] == 2 * other["at_iou_0.5"]["fp"]
     assert "camera front: 2 frames, 2 cars" in out and "camera 1280x720: 1 frames, 1 cars" in out
     assert out.index("camera front:") < out.index("all: 3 frames, 3 cars")
+
+
+@pytest.mark.parametrize("given", [None, "2"])
+def test_the_command_line_starts_blas_with_one_thread_unless_told(given):
+    """Its own threads do the work; BLAS threads would compete with them (and spin at load).
+    A user's own setting stands: the same threads as NumPy alone gets with it."""
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+
+    def blas_threads(first: str) -> list:
+        code = (f"import {first}, json, threadpoolctl\n"
+                "print(json.dumps([p['num_threads'] for p in threadpoolctl.threadpool_info() if p['user_api'] == 'blas']))")
+        proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return json.loads(proc.stdout)
+
+    threads = blas_threads("vehicle_detection.cli")
+    assert threads
+    assert set(threads) == ({1} if given is None else set(blas_threads("numpy")))
