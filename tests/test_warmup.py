@@ -132,11 +132,16 @@ def test_loading_the_kernels_leaves_nothing_for_the_first_frame_to_compile(tmp_p
 
 
 def test_a_second_caller_waits_for_the_kernels_being_loaded(default_model, monkeypatch):
-    """Two threads ask at once: the second returns only when the first has loaded them."""
+    """Two threads ask at once: the second waits, and returns only when the first has loaded them."""
     import threading
-    import time
+    from types import SimpleNamespace
 
-    started, release, order = threading.Event(), threading.Event(), []
+    started, release, waiting, order = threading.Event(), threading.Event(), threading.Event(), []
+
+    class Spy(threading.Event):
+        def wait(self, timeout=None):
+            waiting.set()  # the second caller is about to wait
+            return super().wait(timeout)
 
     def slow_score(*args, **kwargs):
         started.set()
@@ -145,16 +150,19 @@ def test_a_second_caller_waits_for_the_kernels_being_loaded(default_model, monke
 
     monkeypatch.setattr(_warmup, "_score_band", slow_score)
     monkeypatch.setattr(_warmup, "_LOADED", {})
+    monkeypatch.setattr(_warmup, "threading", SimpleNamespace(Event=Spy))
     first = threading.Thread(target=_warmup.load_search_kernels, args=(default_model,))
-    first.start()
-    assert started.wait(10)
     second = threading.Thread(target=lambda: (_warmup.load_search_kernels(default_model), order.append("second")))
-    second.start()
-    time.sleep(0.2)
-    assert order == []  # still waiting
-    release.set()
-    first.join(10)
-    second.join(10)
+    try:
+        first.start()
+        assert started.wait(10)
+        second.start()
+        assert waiting.wait(10)  # the second caller waits on the first's event
+        assert order == []
+    finally:
+        release.set()
+        first.join(10)
+        second.join(10)
     assert order == ["loaded", "second"]
     _warmup.load_search_kernels(default_model)  # loaded: at once, nothing scored again
     assert order == ["loaded", "second"]

@@ -1,4 +1,4 @@
-"""Compile the search kernels on both cores when the numba cache is cold (a fresh install).
+"""The search kernels: compiled on both cores on a fresh install, loaded before the first frame.
 
 numba compiles one kernel at a time (a global compiler lock), about 3 s for the search's
 kernels on a laptop core, after about a second of numba's own start. On a cold cache,
@@ -19,9 +19,10 @@ here (the helper costs its imports, about 0.3 s of CPU). The results never depen
 kernel the helper did not provide in time is compiled here as usual.
 
 On a warm cache nothing happens here, nor with a single core. Either way the kernels are then
-loaded by :func:`load_search_kernels`. A video's run calls the two, in this order, in a thread
-of its own while its first frames are read and measured
-(:meth:`~vehicle_detection.detector.Detector.steps`).
+loaded by :func:`load_search_kernels`: a video's run
+(:meth:`~vehicle_detection.detector.Detector.steps`) compiles first, in its own thread (so that
+Ctrl-C stops it and the helper), then loads them in a thread of their own while its first frames
+are read and measured.
 """
 
 from __future__ import annotations
@@ -108,8 +109,9 @@ def _without(kernels):
             setattr(m, fn, f)
 
 
-def _blank_band(model):
-    plan = model.detector_config.plan
+def _blank_band(model, plan=None):
+    """The first band of ``plan`` (default: the model's) in a blank frame, or None."""
+    plan = plan if plan is not None else model.detector_config.plan
     work, _ = _working_frame(np.zeros((720, 320, 3), np.uint8), plan)
     for s in plan.scales:
         band = _band(work, s, model.config, plan.overhang_of(s), plan.y_shift)
@@ -172,18 +174,24 @@ def compile_search_kernels(model) -> None:
                 helper.wait()
 
 
-def load_search_kernels(model) -> None:
-    """Load every kernel of ``model``'s search into this process: from the cache, else compiled.
+def load_search_kernels(model, plan=None) -> None:
+    """Load every kernel of a search into this process: from the cache, else compiled.
 
     A blank band is scored with every window counted as hot, by the search's own code path, so
     that the kernels the first frame needs are ready. Loading them from a warm cache also starts
     numba (its registries, and SciPy's BLAS, which numba imports): about a second of one core,
     mostly in Python, which :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread
     (after :func:`compile_search_kernels`) while the first frames are read and measured. A call
-    while another thread loads them, or compiles them, waits for it; later calls for the same
-    kind of search return at once. The results never depend on this.
+    while another thread loads them waits for it; later calls for the same kind of search return
+    at once. The results never depend on this: a kernel not loaded here is compiled on first use.
+
+    Parameters
+    ----------
+    model : VehicleClassifier
+    plan : SearchPlan, optional
+        The plan searched with (default: the model's); its ``window_border`` decides the kernels.
     """
-    plan = model.detector_config.plan
+    plan = plan if plan is not None else model.detector_config.plan
     key = (plan.window_border, model.box_regressor is not None)
     with _LOCK:  # held by compile_search_kernels while it compiles
         loaded = _LOADED.get(key)
@@ -194,7 +202,7 @@ def load_search_kernels(model) -> None:
         loaded.wait()  # another thread is loading them: ready when it is done
         return
     try:
-        band = _blank_band(model)
+        band = _blank_band(model, plan)
         if band is not None:
             _score_band(band, model, reuse=False, refine_above=-np.inf, frame=plan.window_border == "frame")
     finally:

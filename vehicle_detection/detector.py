@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import threading
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -52,10 +53,13 @@ HORIZON_FRAMES = 12
 MASKED_SHARE = 0.35
 
 
-def _prepare_kernels(model: VehicleClassifier) -> None:
-    """Compile the search kernels on both cores (a fresh install), then load them all."""
-    compile_search_kernels(model)
-    load_search_kernels(model)
+def _load_kernels(model: VehicleClassifier, plan) -> None:
+    """:func:`~vehicle_detection._warmup.load_search_kernels` in a thread of its own: a kernel it
+    fails to load is compiled on first use instead, so its errors are the search's to report."""
+    try:
+        load_search_kernels(model, plan)
+    except Exception:  # noqa: BLE001  (the first search compiles the kernel and raises the same error there)
+        pass
 
 
 def _footage_overlays(first: list) -> Overlays | None:
@@ -238,10 +242,10 @@ class Detector:
         horizon of ``config.car_horizon`` (:func:`~vehicle_detection.horizon.horizon_from_cars`),
         searching as ``state`` says otherwise (bars, overlays, light); None if they do not agree."""
         rule = self.config.car_horizon
-        load_search_kernels(self.model)  # they may be compiled or loaded in another thread now: wait for them
         frames = [f for f in first if np.shape(f) == np.shape(first[0]) and np.asarray(f).dtype == np.uint8]
         if not frames or np.ndim(frames[0]) != 3 or np.shape(frames[0])[2] != 3:
             return None
+        load_search_kernels(self.model, self.config.plan)  # a thread may be loading them now: wait for it
         frames = frames[:: max(1, len(frames) // rule.frames)][: rule.frames]
         base = self.with_gain(state.gain)
         cut = state.overlays if self.config.auto_overlays else None
@@ -558,12 +562,15 @@ class Detector:
         """
         clock = timing(timeline)
         t = clock.now()
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kernels") as loader:
-            ready = loader.submit(_prepare_kernels, self.model)  # while the first frames are read and measured
-            det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
-            t = clock.lap("footage", t)
-            ready.result()
-        clock.lap("warmup", t)
+        compile_search_kernels(self.model)  # on a fresh install, on both cores; here, so that Ctrl-C stops it
+        compiled = clock.now()
+        # Loaded while the first frames are read and measured. A daemon thread: a run that fails or
+        # is interrupted meanwhile does not wait for it.
+        threading.Thread(target=_load_kernels, args=(self.model, self.config.plan), name="kernels", daemon=True).start()
+        det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
+        measured = clock.lap("footage", compiled)
+        load_search_kernels(self.model, self.config.plan)  # waits for the thread
+        clock.add("warmup", (compiled - t) + (clock.now() - measured))
         remeasure = self.config.auto_overlays or self.config.exposure is not None or self.estimates_horizon
         search = clock.timed("search", det.windows)
 

@@ -16,11 +16,13 @@ stage                   thread       what
 ``to_rgb``              decoder      convert it to RGB (and turn it upright)
 ``decoder_wait``        decoder      wait for room in the queue to the consumer
 ``read_wait``           main         wait for the decoder's next frame
-``warmup``              main         wait for the search kernels, once a run: a thread
-                                     compiles them (a fresh install) and loads them
-                                     while the first frames are measured
+``warmup``              main         compile the search kernels (a fresh install) and wait
+                                     for the thread that loads them while the first
+                                     frames are measured, once a run
 ``footage``             main         measure the first frames (horizon, black bars), once
-                                     a run; their ``read_wait`` is part of it
+                                     a run; their ``read_wait`` is part of it, and so is a
+                                     wait for the kernels when the horizon is read off
+                                     the cars
 ``prepare``             helper       undistort, find lanes (only with a camera)
 ``search``              search pool  the sliding-window search (:meth:`Detector.windows`)
 ``search_wait``         main         wait for the search of the next frame in order
