@@ -14,7 +14,9 @@ small crop scaled up to 1280x720 is a longer lens: the cars as they would look c
 ``zoomed`` views, 1.5 and 2 times). The ``dusk`` views take the light away: each pixel
 multiplied by 0.35 or 0.2, with Gaussian noise of standard deviation 4 or 6 levels added (a fixed
 seed) before the encoding, as a camera at dusk raises its gain; two of them are of tilted views,
-whose horizon must be found without the road's lines.
+whose horizon must be found without the road's lines. The ``pillarbox`` view is a 4:3 picture at
+dusk between black bars in a small 16:9 frame (``PILLARBOX``: the bars' columns), whose bars must
+never be searched.
 """
 
 from __future__ import annotations
