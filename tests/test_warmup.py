@@ -166,3 +166,37 @@ def test_a_second_caller_waits_for_the_kernels_being_loaded(default_model, monke
     assert order == ["loaded", "second"]
     _warmup.load_search_kernels(default_model)  # loaded: at once, nothing scored again
     assert order == ["loaded", "second"]
+
+
+def test_a_run_that_fails_while_the_kernels_load_does_not_wait_for_them(default_model, test_frames, monkeypatch):
+    """The kernels load in a daemon thread while the first frames are measured: when the
+    measurement fails (a damaged video, Ctrl-C), the error reaches the caller at once, so its
+    clean-up runs, while the loading goes on (or is abandoned at exit)."""
+    import threading
+    import time
+
+    import pytest
+
+    from vehicle_detection import detector as D
+
+    release, loading = threading.Event(), threading.Event()
+
+    def slow_load(model, plan=None):
+        loading.set()
+        release.wait(30)
+
+    def damaged(self, frames, tracker, *, workers=1):
+        assert loading.wait(10)  # the loader is busy now
+        raise RuntimeError("damaged video")
+
+    monkeypatch.setattr(D, "compile_search_kernels", lambda model: None)
+    monkeypatch.setattr(D, "load_search_kernels", slow_load)
+    monkeypatch.setattr(D.Detector, "for_footage", damaged)
+    det = D.Detector(default_model)
+    start = time.perf_counter()
+    try:
+        with pytest.raises(RuntimeError, match="damaged video"):
+            next(det.steps(iter(test_frames), det.new_tracker(), 1))
+        assert time.perf_counter() - start < 5  # not the loader's 30 s
+    finally:
+        release.set()
