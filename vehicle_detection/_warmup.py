@@ -20,9 +20,9 @@ kernel the helper did not provide in time is compiled here as usual.
 
 On a warm cache nothing happens here, nor with a single core. Either way the kernels are then
 loaded by :func:`load_search_kernels`: a video's run
-(:meth:`~vehicle_detection.detector.Detector.steps`) compiles first, in its own thread (so that
-Ctrl-C stops it and the helper), then loads them in a thread of their own while its first frames
-are read and measured.
+(:meth:`~vehicle_detection.detector.Detector.steps`) compiles first, in the thread it runs in (so
+that Ctrl-C stops the compile and the helper), then loads them in a thread of their own while its
+first frames are read and measured.
 """
 
 from __future__ import annotations
