@@ -29,6 +29,7 @@ import media
 from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv
 from vehicle_detection.cli import main
 from vehicle_detection.classifier import default_model_path
+from vehicle_detection.training.fit import REFINE_ALPHA
 from vehicle_detection.io.images import read_image
 from vehicle_detection.io.video import probe_video, read_frames
 
@@ -475,6 +476,7 @@ def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_p
     assert last_json(capsys.readouterr().out)["n_images"] == 300 + 12 * 9  # 9 labelled cars, 12 patches each
     loaded = VehicleClassifier.load(model)
     assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
+    assert loaded.metrics["box_refinement"]["alpha"] == REFINE_ALPHA
     tracker = loaded.detector_config.tracker
     assert tracker.window_inset == (0.0, 0.0, 0.0, 0.0) and tracker.cluster_iou > 0 and tracker.box_vote > 0
 
@@ -486,8 +488,10 @@ def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsy
     out = tmp_path / "refined.npz"
     assert main(["refine", "--labels", str(labels), "--out", str(out), "--json"]) == 0
     summary = last_json(capsys.readouterr().out)
-    assert summary == {"n_frames": 26, "n_cars": 52, "alpha": 1000.0, "seconds": summary["seconds"], "model": str(out)}
     base, refined = load_default_model(), VehicleClassifier.load(out)
+    # The penalty is the base model's (the embedded model's refinement was fitted with the default).
+    assert base.metrics["box_refinement"]["alpha"] == REFINE_ALPHA
+    assert summary == {"n_frames": 26, "n_cars": 52, "alpha": REFINE_ALPHA, "seconds": summary["seconds"], "model": str(out)}
     # The classifier, the search and the tracker settings are the base model's; the refinement is new.
     assert np.array_equal(refined.weights, base.weights) and refined.bias == base.bias
     assert refined.detector_config == base.detector_config

@@ -9,7 +9,7 @@ from ..classifier import VehicleClassifier, load_default_model
 from ..errors import InputError
 from ..io import check_output_path
 from ..metrics.detection import load_annotations
-from ..training.fit import with_box_refinement
+from ..training.fit import REFINE_ALPHA, with_box_refinement
 from .options import human_print
 
 __all__ = ["run"]
@@ -25,7 +25,7 @@ def run(args) -> int:
     if n_cars == 0:
         raise InputError(f"{', '.join(map(str, args.labels))}: no labelled cars to fit the box refinement on")
     base = model.metrics.get("box_refinement", {})
-    alpha = args.alpha if args.alpha is not None else base.get("alpha", 1000.0)
+    alpha = args.alpha if args.alpha is not None else base.get("alpha", REFINE_ALPHA)
     tracker = model.detector_config.tracker
     # A model that refines already keeps its clustering and voting; one that does not gets the defaults.
     keep = {"cluster_iou": tracker.cluster_iou, "box_vote": tracker.box_vote} if model.box_regressor is not None else {}

@@ -30,6 +30,10 @@ from .mining import labelled_frames
 
 __all__ = ["split_indices", "with_copies", "train", "with_box_refinement", "sweep", "sweep_configs"]
 
+#: Default ridge penalty of the box refinement (:func:`with_box_refinement`), on standardised
+#: features.
+REFINE_ALPHA = 1e4
+
 
 def split_indices(labels, groups=None, *, test_size: float = 0.2, random_state: int = 0):
     """Train/test indices of a randomised split; grouped when ``groups`` is given.
@@ -194,7 +198,7 @@ def _searched_frames(model: VehicleClassifier, annotations) -> Iterator[tuple[np
 
 
 def with_box_refinement(
-    model: VehicleClassifier, annotations, *, alpha: float = 1000.0, cluster_iou: float = 0.3, box_vote: float = 0.5,
+    model: VehicleClassifier, annotations, *, alpha: float = REFINE_ALPHA, cluster_iou: float = 0.3, box_vote: float = 0.5,
     hot_iou: float | None = 0.5,
 ) -> VehicleClassifier:
     """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
@@ -209,7 +213,8 @@ def with_box_refinement(
     annotations : sequence of Annotations
         Labelled frames; frames you score later must not be among them.
     alpha : float
-        Ridge penalty.
+        Ridge penalty on standardised features (:data:`REFINE_ALPHA` by default): larger values
+        learn less of the labelled cars' own shapes.
     cluster_iou, box_vote : float
         Saved in the detector's tracker settings (:class:`~vehicle_detection.tracker.TrackerConfig`).
     hot_iou : float or None
