@@ -333,7 +333,7 @@ def test_sides_move_onto_the_vehicle_edges(off):
 def test_a_side_further_than_the_reach_moves_at_most_the_reach():
     frame = _dark_car()
     box = np.array([[460, 300, 740, 420]])  # 40 px outside each side; reach 0.1 x 280 = 28 px
-    fitted = fit_sides(frame, box, SideFit())[0]
+    fitted = fit_sides(frame, box, SideFit(reach=0.1))[0]
     assert abs(fitted[0] - 460) <= 28 and abs(fitted[2] - 740) <= 28
     wider = fit_sides(frame, box, SideFit(reach=0.2))[0]  # within reach now
     assert abs(wider[0] - 500) <= 1 and abs(wider[2] - 700) <= 1
@@ -352,7 +352,7 @@ def test_the_outline_wins_over_a_stronger_edge_inside():
 def test_a_vehicle_cut_by_the_frame_keeps_the_frame_edge():
     frame = _dark_car(x1=700, x2=854)
     for x2 in (854, 845):  # at the edge, and short of it by 9 px (reach 0.1 x 150 = 15 px)
-        fitted = fit_sides(frame, np.array([[702, 300, x2, 420]]), SideFit())[0]
+        fitted = fit_sides(frame, np.array([[702, 300, x2, 420]]), SideFit(reach=0.1))[0]
         assert fitted[2] == 854 and abs(fitted[0] - 700) <= 1
 
 

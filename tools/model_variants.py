@@ -14,7 +14,8 @@ the embedded model:
   window inset of the models before it (``TrackerConfig``'s default) and no blob splitting or box
   voting;
 * ``side_fit=none``: the boxes reported as the heat and the tracker give them, their sides not
-  fitted to the frame (:func:`vehicle_detection.refine.fit_sides`);
+  fitted to the frame (:func:`vehicle_detection.refine.fit_sides`); ``side_reach=R`` and
+  ``side_prior=P``: the sides fitted with those :class:`vehicle_detection.refine.SideFit` fields;
 * ``shot_cuts=none`` or ``shot_cuts=on``: the video tracked as one shot, or the tracker started
   afresh at each cut between shots (:mod:`vehicle_detection.shots`, default settings);
 * ``exposure=none`` or ``exposure=on``: dark footage searched as it is, or brightened
@@ -67,6 +68,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
     side_fit = pairs.pop("side_fit", None)
     if side_fit not in (None, "none"):
         raise SystemExit(f"{variant!r}: side_fit takes only 'none' (the embedded model fits the sides)")
+    sides = {field: float(pairs.pop(f"side_{field}")) for field in ("reach", "prior") if f"side_{field}" in pairs}
     switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
     for name, value in switches.items():
         if value not in (None, "none", "on"):
@@ -92,6 +94,9 @@ def model_with(variant: str, folder: Path) -> Path | None:
     model = model.replace(detector_config=model.detector_config.replace(tracker=tracker))
     if side_fit == "none":
         model = model.replace(detector_config=model.detector_config.replace(side_fit=None))
+    elif sides:
+        fit = dataclasses.replace(model.detector_config.side_fit, **sides)
+        model = model.replace(detector_config=model.detector_config.replace(side_fit=fit))
     defaults = vd.DetectorConfig()  # shot_cuts=on, exposure=on, car_horizon=on: the default settings
     for name, value in switches.items():
         if value is not None:
@@ -122,7 +127,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, shot_cuts=none|on, exposure=none|on, car_horizon=none|on")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
