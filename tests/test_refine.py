@@ -382,10 +382,11 @@ def test_fitted_sides_stay_inside_the_frame(seed, x, y, w, h):
     box = np.array([[max(0, x), max(0, y), min(300, max(0, x) + w), min(200, max(0, y) + h)]])
     if box[0, 2] <= box[0, 0] or box[0, 3] <= box[0, 1]:
         return
-    fitted = fit_sides(frame, box, SideFit())[0]
+    fit = SideFit()
+    fitted = fit_sides(frame, box, fit)[0]
     assert 0 <= fitted[0] < fitted[2] <= 300 and fitted[1:4:2].tolist() == box[0, 1:4:2].tolist()
     bw = box[0, 2] - box[0, 0]
-    assert abs(fitted[0] - box[0, 0]) <= 0.1 * bw + 1 and abs(fitted[2] - box[0, 2]) <= 0.1 * bw + 1
+    assert abs(fitted[0] - box[0, 0]) <= fit.reach * bw + 1 and abs(fitted[2] - box[0, 2]) <= fit.reach * bw + 1
 
 
 def test_side_fit_settings_are_checked_and_round_trip():

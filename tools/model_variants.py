@@ -68,7 +68,12 @@ def model_with(variant: str, folder: Path) -> Path | None:
     side_fit = pairs.pop("side_fit", None)
     if side_fit not in (None, "none"):
         raise SystemExit(f"{variant!r}: side_fit takes only 'none' (the embedded model fits the sides)")
-    sides = {field: float(pairs.pop(f"side_{field}")) for field in ("reach", "prior") if f"side_{field}" in pairs}
+    try:
+        sides = {field: float(pairs.pop(f"side_{field}")) for field in ("reach", "prior") if f"side_{field}" in pairs}
+    except ValueError as exc:
+        raise SystemExit(f"{variant!r}: {exc}") from None
+    if sides and side_fit == "none":
+        raise SystemExit(f"{variant!r}: side_fit=none and side_reach/side_prior do not go together")
     switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
     for name, value in switches.items():
         if value not in (None, "none", "on"):
@@ -95,7 +100,10 @@ def model_with(variant: str, folder: Path) -> Path | None:
     if side_fit == "none":
         model = model.replace(detector_config=model.detector_config.replace(side_fit=None))
     elif sides:
-        fit = dataclasses.replace(model.detector_config.side_fit, **sides)
+        try:
+            fit = dataclasses.replace(model.detector_config.side_fit, **sides)
+        except ValueError as exc:
+            raise SystemExit(f"{variant!r}: {exc}") from None
         model = model.replace(detector_config=model.detector_config.replace(side_fit=fit))
     defaults = vd.DetectorConfig()  # shot_cuts=on, exposure=on, car_horizon=on: the default settings
     for name, value in switches.items():

@@ -343,10 +343,10 @@ class SideFit(JsonSettings):
 
     Parameters
     ----------
-    reach : float, default 0.2
+    reach : float, default 0.1
         Each side may move up to this fraction of the box's width, inwards or outwards, in
         ``(0, 0.5)``.
-    prior : float, default 0.1
+    prior : float, default 0.07
         Standard deviation of the Gaussian prior on a side's move, as a fraction of the box's
         width, > 0: a column's edge strength is weighed by it, so a side moves far only to a
         much stronger edge.
@@ -365,8 +365,8 @@ class SideFit(JsonSettings):
         If a value is out of range; the message names the field.
     """
 
-    reach: float = 0.2
-    prior: float = 0.1
+    reach: float = 0.1
+    prior: float = 0.07
     outer: float = 0.9
     rows: tuple[float, float] = (0.3, 0.95)
 
