@@ -29,7 +29,7 @@ import media
 from vehicle_detection.io.tables import BOXES_CSV_HEADER, read_boxes_csv
 from vehicle_detection.cli import main
 from vehicle_detection.classifier import default_model_path
-from vehicle_detection.training.fit import REFINE_ALPHA
+from vehicle_detection.refine import REFINE_ALPHA
 from vehicle_detection.io.images import read_image
 from vehicle_detection.io.video import probe_video, read_frames
 

@@ -40,8 +40,13 @@ from .geometry import as_boxes, box_iou
 
 __all__ = [
     "BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "hot_window_targets", "beyond_jitter",
-    "crop_windows", "working_frame", "fit_box_regressor",
+    "crop_windows", "working_frame", "fit_box_regressor", "REFINE_ALPHA",
 ]
+
+#: Default ridge penalty of the box refinement fitted to labelled frames
+#: (:func:`~vehicle_detection.training.with_box_refinement`, ``train --labels``, ``refine``), on
+#: standardised features.
+REFINE_ALPHA = 1e4
 
 #: Largest predicted edge offset, in window sizes: a window far off its vehicle is not trusted
 #: to move further than this.

@@ -10,6 +10,7 @@ import argparse
 from .. import __version__
 from ..features import COLOR_SPACES, FeatureConfig
 from ..io.video import X264_PRESETS
+from ..refine import REFINE_ALPHA
 
 __all__ = ["build_parser"]
 
@@ -159,7 +160,7 @@ def _add_refine(sub) -> None:
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="where to save the refined model")
     p.add_argument("--model", default=None, help="base model file (default: the embedded model)")
     p.add_argument("--alpha", type=_positive_float, default=None,
-                   help="ridge penalty of the refinement (default: the base model's, else 10000)")
+                   help=f"ridge penalty of the refinement (default: the base model's, else {REFINE_ALPHA:g})")
     p.add_argument("--json", action="store_true", help="print a summary as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file (never an input)")
     _add_common(p)

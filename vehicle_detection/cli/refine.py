@@ -9,7 +9,8 @@ from ..classifier import VehicleClassifier, load_default_model
 from ..errors import InputError
 from ..io import check_output_path
 from ..metrics.detection import load_annotations
-from ..training.fit import REFINE_ALPHA, with_box_refinement
+from ..refine import REFINE_ALPHA
+from ..training.fit import with_box_refinement
 from .options import human_print
 
 __all__ = ["run"]

@@ -23,16 +23,12 @@ from sklearn.model_selection import GroupShuffleSplit, train_test_split
 from ..classifier import DEFAULT_C, VehicleClassifier
 from ..errors import InputError
 from ..features import FeatureConfig, extract_features
-from ..refine import fit_box_regressor
+from ..refine import REFINE_ALPHA, fit_box_regressor
 from .augment import AugmentConfig, augment as augment_patches
 from .data import Dataset, check_split_sizes
 from .mining import labelled_frames
 
 __all__ = ["split_indices", "with_copies", "train", "with_box_refinement", "sweep", "sweep_configs"]
-
-#: Default ridge penalty of the box refinement (:func:`with_box_refinement`), on standardised
-#: features.
-REFINE_ALPHA = 1e4
 
 
 def split_indices(labels, groups=None, *, test_size: float = 0.2, random_state: int = 0):
@@ -213,7 +209,7 @@ def with_box_refinement(
     annotations : sequence of Annotations
         Labelled frames; frames you score later must not be among them.
     alpha : float
-        Ridge penalty on standardised features (:data:`REFINE_ALPHA` by default): larger values
+        Ridge penalty on standardised features (:data:`~vehicle_detection.refine.REFINE_ALPHA` by default): larger values
         learn less of the labelled cars' own shapes.
     cluster_iou, box_vote : float
         Saved in the detector's tracker settings (:class:`~vehicle_detection.tracker.TrackerConfig`).
