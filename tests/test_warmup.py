@@ -16,10 +16,13 @@ search = importlib.import_module("vehicle_detection.search")
 def test_without_restores_the_kernels_and_zeroes_outputs():
     before = (search._region_cells, search._score_blocks, search._block_map, search._colour_sums, search._score_colour)
     with _warmup._without(_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS):
-        assert search._region_cells is _warmup._zero_last
+        assert search._region_cells is not before[0]
         out = np.ones(3)
         search._score_blocks(1, 2, out)
         assert not out.any()
+        bin_means, cell_scores = np.full(4, np.nan), np.full(2, np.nan)
+        search._colour_sums(1, 2, 3, 4, np.ones(2, np.int64), bin_means, cell_scores)  # two outputs
+        assert not bin_means.any() and not cell_scores.any()
     assert (search._region_cells, search._score_blocks, search._block_map, search._colour_sums, search._score_colour) == before
 
 
@@ -31,6 +34,21 @@ def test_every_kernel_is_compiled_by_one_side():
                                     "_hog_products_frame", "_colour_products"})
     for mod, fn, prefix in kernels:
         assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
+
+
+def test_the_helpers_blank_band_is_hot_whatever_its_buffers_held(default_model):
+    """The helper's no-ops leave every output zero: with buffers full of NaN (what ``np.empty``
+    may give), each window's margin is still a number, so every window is hot and the
+    refinement's kernels compile (NaN margins once left ``_colour_products`` to the main process)."""
+    band = _warmup._blank_band(default_model)
+
+    def garbage(name, shape, dtype=np.float64):
+        return np.full(shape, np.nan, dtype) if np.issubdtype(dtype, np.floating) else np.full(shape, 7, dtype)
+
+    with _warmup._without(_warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS):
+        feats = search._band_features(band, default_model, garbage, True, True)
+        margins = search._margins(feats, default_model, band.rows, band.cols)
+    assert margins.size and np.isfinite(margins).all()
 
 
 def _compiled_in_a_fresh_cache(tmp_path, code: str) -> tuple[set, set]:

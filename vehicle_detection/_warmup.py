@@ -84,9 +84,20 @@ def _cached(kernels) -> bool:
     return True
 
 
-def _zero_last(*args) -> None:
-    """A no-op kernel that leaves its output (the last argument) zero, not uninitialised."""
-    args[-1].fill(0)
+# Kernels with more than one output (their last arguments); every other kernel's output is its last.
+_OUTPUTS = {"_colour_sums": 2}  # bin_means, cell_scores
+
+
+def _zero_outputs(n: int):
+    """A no-op kernel that leaves its ``n`` outputs (its last arguments) zero, not uninitialised.
+
+    An output left as ``np.empty`` gave it may hold NaN, and NaN margins: no window of the
+    helper's blank band would then be hot, and the refinement's kernels would not compile.
+    """
+    def no_op(*args) -> None:
+        for out in args[-n:]:
+            out.fill(0)
+    return no_op
 
 
 def _cores() -> int:
@@ -96,12 +107,13 @@ def _cores() -> int:
 
 @contextmanager
 def _without(kernels):
-    """Replace ``kernels`` by no-ops for the duration (the helper process only: never in a user's process)."""
+    """Replace ``kernels`` by no-ops that zero their outputs, for the duration (the helper process
+    only: never in a user's process)."""
     saved = []
     for mod, fn, _ in kernels:
         m = _module(mod)
         saved.append((m, fn, getattr(m, fn)))
-        setattr(m, fn, _zero_last)
+        setattr(m, fn, _zero_outputs(_OUTPUTS.get(fn, 1)))
     try:
         yield
     finally:
