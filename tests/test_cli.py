@@ -694,7 +694,7 @@ def test_the_command_line_starts_blas_with_one_thread_unless_told(given):
         env["OPENBLAS_NUM_THREADS"] = given
 
     def blas_threads(first: str) -> list:
-        code = (f"import {first}, json, threadpoolctl\n"
+        code = (f"import {first}, numpy, json, threadpoolctl\n"  # the command line imports NumPy when it runs a command
                 "print(json.dumps([p['num_threads'] for p in threadpoolctl.threadpool_info() if p['user_api'] == 'blas']))")
         proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stderr[-2000:]
@@ -703,3 +703,33 @@ def test_the_command_line_starts_blas_with_one_thread_unless_told(given):
     threads = blas_threads("vehicle_detection.cli")
     assert threads
     assert set(threads) == ({1} if given is None else set(blas_threads("numpy")))
+
+
+def test_the_command_line_imports_nothing_heavy_before_it_runs_a_command():
+    """The helper compiling half the kernels on a fresh install starts before numba's import."""
+    code = ("import sys, vehicle_detection.cli\n"
+            "print(sorted(m for m in ('numba', 'numpy', 'cv2', 'av') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("argv, starts", [
+    (["detect", "v.mp4"], True), (["evaluate", "--labels", "l.json"], True), (["detect", "--help"], False),
+    (["train", "--data", "d"], False), (["--version"], False), ([], False),
+])
+def test_the_helper_starts_early_for_the_searching_commands_only(argv, starts, monkeypatch):
+    import importlib
+
+    from vehicle_detection import warmup
+
+    cli_main = importlib.import_module("vehicle_detection.cli.main")  # the module (the package's main is the function)
+    calls = []
+    monkeypatch.setattr(warmup, "start_helper", lambda: calls.append("start"))
+    monkeypatch.setattr(warmup, "stop_helper", lambda: calls.append("stop"))
+    monkeypatch.setattr(cli_main, "_run", lambda args: 0)
+    try:
+        cli_main.main(argv)
+    except SystemExit:  # --help, --version, a missing command: parsed, then exits
+        pass
+    assert calls == (["start", "stop"] if starts else ["stop"])

@@ -226,10 +226,12 @@ def test_subpackage_faces_import_nothing_but_the_lazy_loader():
 
 
 def test_the_console_script_is_the_cli_main():
+    """The console script runs ``main`` and exits with its code (``run``), as ``python -m`` does."""
     scripts = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text())["project"]["scripts"]
     module, _, func = scripts["vehicle-detection"].partition(":")
     assert module == f"{NAME}.cli.main"
-    assert getattr(importlib.import_module(module), func) is vd.cli.main
+    assert getattr(importlib.import_module(module), func) is vd.cli.run
+    assert "run()" in (PACKAGE / "cli" / "__main__.py").read_text()
 
 
 # --- the old paths, for one release ------------------------------------------------------------------

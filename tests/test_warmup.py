@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vehicle_detection import _warmup
+from vehicle_detection import warmup
 
 features = importlib.import_module("vehicle_detection.features")
 search = importlib.import_module("vehicle_detection.search")
@@ -15,7 +15,7 @@ search = importlib.import_module("vehicle_detection.search")
 
 def test_without_restores_the_kernels_and_zeroes_outputs():
     before = (search._region_cells, search._score_blocks, search._block_map, search._colour_sums, search._score_colour)
-    with _warmup._without(_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS):
+    with warmup._without(warmup._HELPER_KERNELS + warmup._MAIN_KERNELS):
         assert search._region_cells is not before[0]
         out = np.ones(3)
         search._score_blocks(1, 2, out)
@@ -27,25 +27,25 @@ def test_without_restores_the_kernels_and_zeroes_outputs():
 
 
 def test_every_kernel_is_compiled_by_one_side():
-    kernels = (_warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS
-               + _warmup._HELPER_REFINE_KERNELS)
+    kernels = (warmup._HELPER_KERNELS + warmup._MAIN_KERNELS + warmup._MAIN_REFINE_KERNELS
+               + warmup._HELPER_REFINE_KERNELS)
     names = [fn for _, fn, _ in kernels]
     assert sorted(names) == sorted({"_region_cells", "_colour_sums", "_score_colour", "_score_blocks", "_block_map",
                                     "_hog_products_frame", "_colour_products"})
     for mod, fn, prefix in kernels:
-        assert hasattr(_warmup._module(mod), fn) and prefix.endswith(fn + "-")
+        assert hasattr(warmup._module(mod), fn) and prefix.endswith(fn + "-")
 
 
 def test_the_helpers_blank_band_is_hot_whatever_its_buffers_held(default_model):
     """The helper's no-ops leave every output zero: with buffers full of NaN (what ``np.empty``
     may give), each window's margin is still a number, so every window is hot and the
     refinement's kernels compile (NaN margins once left ``_colour_products`` to the main process)."""
-    band = _warmup._blank_band(default_model)
+    band = warmup._blank_band(default_model)
 
     def garbage(name, shape, dtype=np.float64):
         return np.full(shape, np.nan, dtype) if np.issubdtype(dtype, np.floating) else np.full(shape, 7, dtype)
 
-    with _warmup._without(_warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS):
+    with warmup._without(warmup._MAIN_KERNELS + warmup._MAIN_REFINE_KERNELS):
         feats = search._band_features(band, default_model, garbage, True, True)
         margins = search._margins(feats, default_model, band.rows, band.cols)
     assert margins.size and np.isfinite(margins).all()
@@ -83,22 +83,22 @@ def _compiled_in_a_fresh_cache(tmp_path, code: str) -> tuple[set, set]:
 def test_the_helper_fills_a_fresh_cache_with_its_kernels_only(tmp_path):
     """Its search of a blank frame with the main half's kernels as no-ops must run through (each
     no-op zeroes its kernel's output, the last argument) and compile exactly its share."""
-    compiled, files = _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection._warmup import _helper\n_helper()\n")
-    helper = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._HELPER_REFINE_KERNELS}
+    compiled, files = _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection.warmup import _helper\n_helper()\n")
+    helper = {fn for _, fn, _ in warmup._HELPER_KERNELS + warmup._HELPER_REFINE_KERNELS}
     assert compiled == helper | {"_l2hys"}  # _block_map's normalisation, a kernel of its own
     assert {f.split(".")[1] for f in files} == helper | {"_l2hys"}
 
 
 def test_the_main_half_compiles_the_other_kernels(tmp_path):
     compiled, _ = _compiled_in_a_fresh_cache(
-        tmp_path, "from vehicle_detection import _warmup, load_default_model\n_warmup._compile_main(load_default_model())\n")
-    assert compiled == {fn for _, fn, _ in _warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS}
+        tmp_path, "from vehicle_detection import warmup, load_default_model\nwarmup._compile_main(load_default_model())\n")
+    assert compiled == {fn for _, fn, _ in warmup._MAIN_KERNELS + warmup._MAIN_REFINE_KERNELS}
 
 
 def test_searching_after_the_warm_up_gives_the_same_windows(default_model, test_frames):
     before = search.search(test_frames[0], default_model)
-    _warmup._DONE.clear()
-    _warmup.compile_search_kernels(default_model)  # warm cache here: nothing to do
+    warmup._DONE.clear()
+    warmup.compile_search_kernels(default_model)  # warm cache here: nothing to do
     after = search.search(test_frames[0], default_model)
     np.testing.assert_array_equal(before.xyxy, after.xyxy)
     np.testing.assert_array_equal(before.score, after.score)
@@ -131,11 +131,11 @@ def test_loading_the_kernels_leaves_nothing_for_the_first_frame_to_compile(tmp_p
     in a fresh cache it compiles every kernel a search of a real frame with cars needs, so that
     search compiles none (a kernel it missed would be compiled on the first frame, not meanwhile)."""
     code = (
-        "from vehicle_detection import _warmup, load_default_model\n"
+        "from vehicle_detection import warmup, load_default_model\n"
         "from vehicle_detection.io.images import read_image\n"
         "import vehicle_detection.search as S\n"
         "m = load_default_model()\n"
-        "_warmup.load_search_kernels(m)\n"
+        "warmup.load_search_kernels(m)\n"
         "print('loaded:' + ','.join(sorted(seen.names)))\n"
         "seen.names.clear()\n"
         "found = S.search(read_image('test_images/test1.jpg'), m)\n"
@@ -143,8 +143,8 @@ def test_loading_the_kernels_leaves_nothing_for_the_first_frame_to_compile(tmp_p
     )
     compiled, _ = _compiled_in_a_fresh_cache(tmp_path, code)
     loaded = next(w for w in compiled if w.startswith("loaded:"))
-    every = {fn for _, fn, _ in _warmup._HELPER_KERNELS + _warmup._MAIN_KERNELS + _warmup._MAIN_REFINE_KERNELS
-             + _warmup._HELPER_REFINE_KERNELS}
+    every = {fn for _, fn, _ in warmup._HELPER_KERNELS + warmup._MAIN_KERNELS + warmup._MAIN_REFINE_KERNELS
+             + warmup._HELPER_REFINE_KERNELS}
     assert set(loaded.removeprefix("loaded:").split(",")) >= every
     assert compiled == {loaded}  # the real frame's search compiled nothing
 
@@ -166,11 +166,11 @@ def test_a_second_caller_waits_for_the_kernels_being_loaded(default_model, monke
         release.wait(10)
         order.append("loaded")
 
-    monkeypatch.setattr(_warmup, "_score_band", slow_score)
-    monkeypatch.setattr(_warmup, "_LOADED", {})
-    monkeypatch.setattr(_warmup, "threading", SimpleNamespace(Event=Spy))
-    first = threading.Thread(target=_warmup.load_search_kernels, args=(default_model,))
-    second = threading.Thread(target=lambda: (_warmup.load_search_kernels(default_model), order.append("second")))
+    monkeypatch.setattr(search, "_score_band", slow_score)  # imported by the loader when it runs
+    monkeypatch.setattr(warmup, "_LOADED", {})
+    monkeypatch.setattr(warmup, "threading", SimpleNamespace(Event=Spy))
+    first = threading.Thread(target=warmup.load_search_kernels, args=(default_model,))
+    second = threading.Thread(target=lambda: (warmup.load_search_kernels(default_model), order.append("second")))
     try:
         first.start()
         assert started.wait(10)
@@ -182,7 +182,7 @@ def test_a_second_caller_waits_for_the_kernels_being_loaded(default_model, monke
         first.join(10)
         second.join(10)
     assert order == ["loaded", "second"]
-    _warmup.load_search_kernels(default_model)  # loaded: at once, nothing scored again
+    warmup.load_search_kernels(default_model)  # loaded: at once, nothing scored again
     assert order == ["loaded", "second"]
 
 
@@ -218,3 +218,74 @@ def test_a_run_that_fails_while_the_kernels_load_does_not_wait_for_them(default_
         assert time.perf_counter() - start < 5  # not the loader's 30 s
     finally:
         release.set()
+
+
+class _FakeHelper:
+    """A helper process that never runs: what start_helper / compile_search_kernels do with it."""
+
+    started: list = []
+
+    def __init__(self):
+        self.killed = self.waited = False
+        _FakeHelper.started.append(self)
+
+    def poll(self):
+        return 0 if self.killed or self.waited else None
+
+    def kill(self):
+        self.killed = True
+
+    def wait(self, timeout=None):
+        self.waited = True
+        return 0
+
+
+def _cold(monkeypatch):
+    _FakeHelper.started = []
+    monkeypatch.setattr(warmup, "_DONE", __import__("threading").Event())
+    monkeypatch.setattr(warmup, "_STARTED", [])
+    monkeypatch.setattr(warmup, "_cores", lambda: 2)
+    monkeypatch.setattr(warmup, "_cached", lambda kernels: False)
+    monkeypatch.setattr(warmup, "_start_process", _FakeHelper)
+    monkeypatch.setattr(warmup, "_compile_main", lambda model: None)
+
+
+def test_a_helper_started_early_is_taken_over_by_the_first_search(default_model, monkeypatch):
+    _cold(monkeypatch)
+    warmup.start_helper()
+    warmup.start_helper()  # once
+    assert len(_FakeHelper.started) == 1
+    warmup.compile_search_kernels(default_model)
+    assert len(_FakeHelper.started) == 1 and _FakeHelper.started[0].waited  # no second process
+    warmup.stop_helper()
+    assert not _FakeHelper.started[0].killed  # it was the search's to end
+
+
+def test_a_helper_no_search_took_over_is_stopped(monkeypatch):
+    _cold(monkeypatch)
+    warmup.start_helper()
+    warmup.stop_helper()
+    assert _FakeHelper.started[0].killed and warmup._STARTED == []
+
+
+def test_no_helper_on_a_warm_cache_or_one_core(monkeypatch):
+    _cold(monkeypatch)
+    monkeypatch.setattr(warmup, "_cached", lambda kernels: True)
+    warmup.start_helper()
+    monkeypatch.setattr(warmup, "_cached", lambda kernels: False)
+    monkeypatch.setattr(warmup, "_cores", lambda: 1)
+    warmup.start_helper()
+    assert _FakeHelper.started == []
+
+
+def test_the_module_starts_the_helper_without_numba_numpy_or_the_search():
+    """What lets the command line start it before its own imports."""
+    import subprocess
+    import sys
+
+    code = ("import sys, vehicle_detection.warmup\n"
+            "print(sorted(m for m in ('numba', 'numpy', 'vehicle_detection.search') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]"

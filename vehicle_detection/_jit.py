@@ -68,14 +68,18 @@ def _choose_cache_dir() -> Path | None:
 CACHE_DIR: Path | None = _choose_cache_dir()
 
 if CACHE_DIR is not None:
-    os.environ["NUMBA_CACHE_DIR"] = str(CACHE_DIR)
-
-import numba  # noqa: E402  (after NUMBA_CACHE_DIR is set: numba reads it on import)
-
-if CACHE_DIR is not None:
-    numba.config.CACHE_DIR = str(CACHE_DIR)  # numba may have been imported before us
+    os.environ["NUMBA_CACHE_DIR"] = str(CACHE_DIR)  # numba reads it on import
 
 
 def njit(**options):
-    """``numba.njit`` with ``cache=True`` where a cache folder is writable."""
+    """``numba.njit`` with ``cache=True`` where a cache folder is writable.
+
+    numba is imported here, on the first kernel defined, not with this module: the helper
+    process of :mod:`~vehicle_detection.warmup` is started from the cache folder alone,
+    before the command line's imports.
+    """
+    import numba
+
+    if CACHE_DIR is not None:
+        numba.config.CACHE_DIR = str(CACHE_DIR)  # numba may have been imported before us
     return numba.njit(cache=CACHE_DIR is not None, **options)

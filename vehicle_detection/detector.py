@@ -28,7 +28,7 @@ from contextlib import closing
 
 import numpy as np
 
-from ._warmup import compile_search_kernels, load_search_kernels
+from .warmup import compile_search_kernels, load_search_kernels
 from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
@@ -54,7 +54,7 @@ MASKED_SHARE = 0.35
 
 
 def _load_kernels(model: VehicleClassifier, plan) -> None:
-    """:func:`~vehicle_detection._warmup.load_search_kernels` in a thread of its own: a kernel it
+    """:func:`~vehicle_detection.warmup.load_search_kernels` in a thread of its own: a kernel it
     fails to load is compiled on first use instead, so its errors are the search's to report."""
     try:
         load_search_kernels(model, plan)

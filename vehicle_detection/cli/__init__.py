@@ -1,4 +1,4 @@
-"""The ``vehicle-detection`` command line: :func:`main` (the console script) and its parser.
+"""The ``vehicle-detection`` command line: :func:`main`, :func:`run` (the console script) and its parser.
 
 ``python -m vehicle_detection.cli ...`` runs it too.
 """
@@ -13,7 +13,18 @@ import os
 for _name in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-from .main import main  # noqa: E402
-from .parser import build_parser  # noqa: E402
+from .main import main, run  # noqa: E402  (light: a command's modules are imported when it runs)
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "run", "build_parser"]
+
+
+def __getattr__(name: str):
+    if name == "build_parser":  # the parser imports the features' defaults, and with them numba
+        from .parser import build_parser
+
+        return build_parser
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

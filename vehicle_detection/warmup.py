@@ -18,6 +18,11 @@ work the two processes share what is free, which is never slower than compiling 
 here (the helper costs its imports, about 0.3 s of CPU). The results never depend on this: a
 kernel the helper did not provide in time is compiled here as usual.
 
+The command line starts that helper process earlier still, before it imports anything of the
+detector (:func:`start_helper`, for ``detect`` and ``evaluate``): its compile then overlaps this
+process's imports and its reading of the inputs (numba's included, about a second), and
+:func:`compile_search_kernels` takes it over. A script can do the same before its own imports.
+
 On a warm cache nothing happens here, nor with a single core. Either way the kernels are then
 loaded by :func:`load_search_kernels`: a video's run
 (:meth:`~vehicle_detection.detector.Detector.steps`) compiles first, in the thread it runs in (so
@@ -35,16 +40,13 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
-import numpy as np
+from . import _jit  # the cache folder only: numba, NumPy and the search are imported where used
 
-from . import _jit
-from .classifier import load_default_model
-from .search import _band, _band_features, _kernel_weights, _margins, _refine_hog, _score_band, _working_frame, search
-
-__all__ = ["compile_search_kernels", "load_search_kernels"]
+__all__ = ["compile_search_kernels", "load_search_kernels", "start_helper", "stop_helper"]
 
 _DONE = threading.Event()
 _LOCK = threading.Lock()
+_STARTED: list = []  # the helper process started ahead of the first search (start_helper), if any
 _LOADED: dict = {}  # (window border, refines or not): set once that search's kernels are loaded
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
@@ -123,6 +125,10 @@ def _without(kernels):
 
 def _blank_band(model, plan=None):
     """The first band of ``plan`` (default: the model's) in a blank frame, or None."""
+    import numpy as np
+
+    from .search import _band, _working_frame
+
     plan = plan if plan is not None else model.detector_config.plan
     work, _ = _working_frame(np.zeros((720, 320, 3), np.uint8), plan)
     for s in plan.scales:
@@ -136,6 +142,10 @@ def _compile_main(model) -> None:
     """This process's half: the cells, colour sums and HOG window-score kernels and the
     refinement's HOG part, by the search's own functions with the arguments a search gives them,
     nothing replaced."""
+    import numpy as np
+
+    from .search import _band_features, _kernel_weights, _margins, _refine_hog
+
     band = _blank_band(model)
     if band is None:
         return
@@ -152,28 +162,76 @@ def _compile_main(model) -> None:
         _refine_hog(feats, model, band.rows[index // len(band.cols)], band.cols[index % len(band.cols)], np.zeros((1, 4)))
 
 
+def _all_kernels(refine: bool) -> tuple:
+    return _HELPER_KERNELS + _MAIN_KERNELS + (_MAIN_REFINE_KERNELS + _HELPER_REFINE_KERNELS if refine else ())
+
+
+def _start_process():
+    """The helper process, compiling its half into the cache folder; None if it cannot start."""
+    env = dict(os.environ)
+    env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
+    package_parent = str(Path(__file__).resolve().parents[1])  # this very package, not another install
+    env["PYTHONPATH"] = os.pathsep.join([package_parent] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    try:
+        return subprocess.Popen(
+            # its kernels are in the cache once _helper returns: it exits at once (no teardown, a
+            # third of a second that this process would wait for)
+            [sys.executable, "-c", "import os; from vehicle_detection.warmup import _helper; _helper(); os._exit(0)"],
+            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+    except OSError:
+        return None  # compiled here on first use
+
+
+def _end(helper) -> None:
+    if helper.poll() is None:
+        helper.kill()
+        helper.wait()
+
+
+def start_helper() -> None:
+    """Start the helper process now, ahead of the first search, where
+    :func:`compile_search_kernels` would start it (a cold cache, two cores).
+
+    Its compile then overlaps this process's own imports and reading of its inputs: the command
+    line starts it before it imports the command it runs (about a second, numba's included).
+    Nothing here imports numba, NumPy or the search. :func:`compile_search_kernels` takes the
+    process over; :func:`stop_helper` ends one that no search took over. The results never
+    depend on this.
+    """
+    with _LOCK:
+        if _DONE.is_set() or _STARTED or _cores() < 2 or _cached(_all_kernels(refine=True)):
+            return
+        helper = _start_process()
+        if helper is not None:
+            _STARTED.append(helper)
+
+
+def stop_helper() -> None:
+    """End the helper process :func:`start_helper` started, if no search took it over (a command
+    that failed before its first search, for one)."""
+    with _LOCK:
+        while _STARTED:
+            _end(_STARTED.pop())
+
+
 def compile_search_kernels(model) -> None:
     """Before the first search of a run: on a cold cache, compile the kernels in two processes.
 
-    Later calls return at once; nothing of this process is replaced, so any thread may search meanwhile.
+    The helper process is the one :func:`start_helper` started, else one started now. Later
+    calls return at once; nothing of this process is replaced, so any thread may search meanwhile.
     """
     with _LOCK:
         if _DONE.is_set():
             return
         _DONE.set()
-        refine = _MAIN_REFINE_KERNELS + _HELPER_REFINE_KERNELS if model.box_regressor is not None else ()
-        if _cores() < 2 or _cached(_HELPER_KERNELS + _MAIN_KERNELS + refine):
+        helper = _STARTED.pop() if _STARTED else None
+        if _cores() < 2 or _cached(_all_kernels(model.box_regressor is not None)):
+            if helper is not None:
+                _end(helper)
             return
-        env = dict(os.environ)
-        env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
-        package_parent = str(Path(__file__).resolve().parents[1])  # this very package, not another install
-        env["PYTHONPATH"] = os.pathsep.join([package_parent] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
-        try:
-            helper = subprocess.Popen(
-                [sys.executable, "-c", "from vehicle_detection._warmup import _helper; _helper()"],
-                env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            )
-        except OSError:
+        helper = helper or _start_process()
+        if helper is None:
             return  # compiled here on first use
         try:
             _compile_main(model)
@@ -181,9 +239,7 @@ def compile_search_kernels(model) -> None:
         except subprocess.TimeoutExpired:
             pass
         finally:
-            if helper.poll() is None:
-                helper.kill()
-                helper.wait()
+            _end(helper)
 
 
 def load_search_kernels(model, plan=None) -> None:
@@ -203,6 +259,10 @@ def load_search_kernels(model, plan=None) -> None:
     plan : SearchPlan, optional
         The plan searched with (default: the model's); its ``window_border`` decides the kernels.
     """
+    import numpy as np
+
+    from .search import _score_band
+
     plan = plan if plan is not None else model.detector_config.plan
     key = (plan.window_border, model.box_regressor is not None)
     with _LOCK:  # held by compile_search_kernels while it compiles
@@ -224,6 +284,11 @@ def load_search_kernels(model, plan=None) -> None:
 def _helper() -> None:
     """The helper process's half: a real search of a blank frame with the main half's kernels as
     no-ops, and its first band scored with every window counted as hot (the refinement's kernels)."""
+    import numpy as np
+
+    from .classifier import load_default_model
+    from .search import _score_band, search
+
     model = load_default_model()
     with _without(_MAIN_KERNELS + _MAIN_REFINE_KERNELS):  # this process only
         search(np.zeros((720, 320, 3), np.uint8), model)
