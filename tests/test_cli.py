@@ -716,6 +716,10 @@ def test_the_command_line_imports_nothing_heavy_before_it_runs_a_command():
 
 @pytest.mark.parametrize("argv, starts", [
     (["detect", "v.mp4"], True), (["evaluate", "--labels", "l.json"], True), (["detect", "--help"], False),
+    (["detect", "v.mp4", "--he"], False), (["detect", "v.mp4", "--horizon", "0.5"], True),
+    (["detect", "a.mp4", "b.mp4", "--jobs", "2"], False), (["detect", "a.mp4", "--jobs=1"], True),
+    (["detect", "a.mp4", "--scheduler", "tcp://h:8786"], False), (["detect", "a.mp4", "--boxes", "b.csv"], True),
+    (["evaluate", "--labels", "l.json", "--boxes", "b.csv"], False),
     (["train", "--data", "d"], False), (["--version"], False), ([], False),
 ])
 def test_the_helper_starts_early_for_the_searching_commands_only(argv, starts, monkeypatch):
@@ -733,3 +737,28 @@ def test_the_helper_starts_early_for_the_searching_commands_only(argv, starts, m
     except SystemExit:  # --help, --version, a missing command: parsed, then exits
         pass
     assert calls == (["start", "stop"] if starts else ["stop"])
+
+
+def test_a_signal_while_the_command_line_starts_ends_the_run_and_its_helper(monkeypatch, capsys):
+    """SIGTERM (or Ctrl-C) before the command runs, while its modules are imported: exit 130 with
+    the one line, and the helper process started for it ended."""
+    import importlib
+    import signal
+
+    from vehicle_detection import warmup
+
+    cli_main = importlib.import_module("vehicle_detection.cli.main")
+    calls = []
+    monkeypatch.setattr(warmup, "start_helper", lambda: (calls.append("start"), os.kill(os.getpid(), signal.SIGTERM)))
+    monkeypatch.setattr(warmup, "stop_helper", lambda: calls.append("stop"))
+
+    def unhandled(signum, frame):
+        raise RuntimeError("SIGTERM reached the handler from before the run")  # not pytest's death
+
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        assert cli_main.main(["detect", "v.mp4"]) == 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert calls == ["start", "stop"]
+    assert capsys.readouterr().err.strip() == "vehicle-detection: interrupted"

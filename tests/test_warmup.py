@@ -244,6 +244,7 @@ def _cold(monkeypatch):
     _FakeHelper.started = []
     monkeypatch.setattr(warmup, "_DONE", __import__("threading").Event())
     monkeypatch.setattr(warmup, "_STARTED", [])
+    monkeypatch.setattr(warmup, "_ATEXIT", [True])  # no stop_helper left registered by these tests
     monkeypatch.setattr(warmup, "_cores", lambda: 2)
     monkeypatch.setattr(warmup, "_cached", lambda kernels: False)
     monkeypatch.setattr(warmup, "_start_process", _FakeHelper)
@@ -278,14 +279,40 @@ def test_no_helper_on_a_warm_cache_or_one_core(monkeypatch):
     assert _FakeHelper.started == []
 
 
-def test_the_module_starts_the_helper_without_numba_numpy_or_the_search():
-    """What lets the command line start it before its own imports."""
+def test_a_warm_cache_ends_a_helper_started_early(default_model, monkeypatch):
+    _cold(monkeypatch)
+    warmup.start_helper()
+    monkeypatch.setattr(warmup, "_cached", lambda kernels: True)  # the kernels were cached meanwhile
+    warmup.compile_search_kernels(default_model)
+    assert _FakeHelper.started[0].killed and warmup._STARTED == []
+
+
+def test_the_first_helper_registers_its_end_at_exit(monkeypatch):
+    _cold(monkeypatch)
+    monkeypatch.setattr(warmup, "_ATEXIT", [])
+    registered = []
+    monkeypatch.setattr(warmup.atexit, "register", registered.append)
+    warmup.start_helper()
+    warmup.stop_helper()
+    warmup.start_helper()
+    assert registered == [warmup.stop_helper]
+
+
+def test_the_helper_started_early_compiles_its_half_without_numba_numpy_or_the_search_here(tmp_path):
+    """A real helper process in a fresh cache, started as the command line starts it: this process
+    imports nothing heavy, the helper exits cleanly and leaves exactly its kernels in the cache."""
+    import os
     import subprocess
     import sys
 
-    code = ("import sys, vehicle_detection.warmup\n"
-            "print(sorted(m for m in ('numba', 'numpy', 'vehicle_detection.search') if m in sys.modules))")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          cwd=Path(__file__).resolve().parents[1])
+    code = ("import sys, vehicle_detection.warmup as w\n"
+            "w.start_helper()\n"
+            "rc = w._STARTED[0].wait(240)\n"
+            "print(rc, sorted(m for m in ('numba', 'numpy', 'vehicle_detection.search') if m in sys.modules))\n")
+    cache = tmp_path / "cache"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(cache)}, cwd=Path(__file__).resolve().parents[1])
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.strip() == "[]"
+    assert proc.stdout.split(maxsplit=1) == ["0", "[]\n"]
+    helper = {fn for _, fn, _ in warmup._HELPER_KERNELS + warmup._HELPER_REFINE_KERNELS}
+    assert {f.name.split("-")[0].split(".")[1] for f in cache.rglob("*.nbi")} == helper | {"_l2hys"}

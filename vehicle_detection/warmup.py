@@ -32,6 +32,7 @@ first frames are read and measured.
 
 from __future__ import annotations
 
+import atexit
 import importlib
 import os
 import subprocess
@@ -47,6 +48,7 @@ __all__ = ["compile_search_kernels", "load_search_kernels", "start_helper", "sto
 _DONE = threading.Event()
 _LOCK = threading.Lock()
 _STARTED: list = []  # the helper process started ahead of the first search (start_helper), if any
+_ATEXIT: list = []  # stop_helper registered to run at exit
 _LOADED: dict = {}  # (window border, refines or not): set once that search's kernels are loaded
 # (module the search calls it through, name, cache file prefix)
 _HELPER_KERNELS = (
@@ -196,14 +198,18 @@ def start_helper() -> None:
     Its compile then overlaps this process's own imports and reading of its inputs: the command
     line starts it before it imports the command it runs (about a second, numba's included).
     Nothing here imports numba, NumPy or the search. :func:`compile_search_kernels` takes the
-    process over; :func:`stop_helper` ends one that no search took over. The results never
-    depend on this.
+    process over; :func:`stop_helper` ends one that no search took over, as the interpreter's
+    exit does. The results never depend on this.
     """
     with _LOCK:
-        if _DONE.is_set() or _STARTED or _cores() < 2 or _cached(_all_kernels(refine=True)):
+        # a model without the refinement never compiles its kernels: the cache is warm without them
+        if _DONE.is_set() or _STARTED or _cores() < 2 or _cached(_all_kernels(refine=False)):
             return
         helper = _start_process()
         if helper is not None:
+            if not _ATEXIT:
+                atexit.register(stop_helper)  # a script that never searches leaves no helper behind
+                _ATEXIT.append(True)
             _STARTED.append(helper)
 
 

@@ -29,7 +29,7 @@ from .. import warmup
 from ..errors import VehicleDetectionError, one_line
 from ..io import interrupt_on_signals
 
-__all__ = ["main", "COMMANDS"]
+__all__ = ["main", "run", "COMMANDS", "SEARCHING"]
 
 #: Command -> the module of this package that runs it (``run(args) -> exit code``).
 COMMANDS = {
@@ -109,28 +109,49 @@ def _guarded_stdout():
 
 
 #: Commands whose first search a user waits for: on a fresh install, the helper process compiling
-#: half the search's kernels starts before anything else is imported (:func:`warmup.start_helper`).
+#: half the search's kernels starts before anything else is imported (:func:`warmup.start_helper`),
+#: unless the searches run in other processes (``--jobs``, ``--scheduler``) or none runs (boxes read).
 SEARCHING = frozenset({"detect", "evaluate"})
 
 
-def _searches(argv) -> bool:
+def _searches(argv: list[str]) -> bool:
+    """Whether ``argv`` runs a searching command in this process (read before the parser exists)."""
     words = [a for a in argv if not a.startswith("-")]
-    return bool(words) and words[0] in SEARCHING and not {"-h", "--help"} & set(argv)
+    if not words or words[0] not in SEARCHING:
+        return False
+    for i, a in enumerate(argv):
+        if a == "-h" or (a.startswith("--he") and "--help".startswith(a)):  # argparse takes --he, --hel
+            return False
+        name = a.split("=")[0]
+        if name == "--scheduler" or (name == "--boxes" and words[0] == "evaluate"):
+            return False
+        if name == "--jobs":
+            value = a.partition("=")[2] or (argv[i + 1] if i + 1 < len(argv) else "")
+            if value != "1":
+                return False
+    return True
 
 
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see module docstring)."""
-    if _searches(sys.argv[1:] if argv is None else argv):
-        warmup.start_helper()
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        from .parser import build_parser  # the features' defaults: numba and NumPy
+        # From the first moment: a signal while the parser and the command are imported ends the
+        # run as any other does (130), and the helper with it.
+        with interrupt_on_signals():
+            if _searches(argv):
+                warmup.start_helper()
+            from .parser import build_parser  # the features' defaults: numba and NumPy
 
-        with _guarded_stdout():
-            parser = build_parser()
-            args = parser.parse_args(argv)
-            return _run(args)
+            with _guarded_stdout():
+                parser = build_parser()
+                args = parser.parse_args(argv)
+                return _run(args)
+    except KeyboardInterrupt:  # before _run's own handling
+        print("vehicle-detection: interrupted", file=sys.stderr)
+        return 130
     finally:
-        warmup.stop_helper()  # one the command did not take over (it failed before searching)
+        warmup.stop_helper()  # one the command did not take over (it failed or ended before searching)
 
 
 def run() -> None:
