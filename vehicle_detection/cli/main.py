@@ -136,8 +136,8 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit code (see module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        # From the first moment: a signal while the parser and the command are imported ends the
-        # run as any other does (130), and the helper with it.
+        # From the first moment, for the whole run: a signal while the parser and the command are
+        # imported ends the run as one during the command does (130), and the helper with it.
         with interrupt_on_signals():
             if _searches(argv):
                 warmup.start_helper()
@@ -168,10 +168,10 @@ def run() -> None:
 def _run(args) -> int:
     # With --debug the traceback comes first, then the same one-line message and exit code.
     # SIGTERM (timeout, docker stop, systemd) and SIGHUP (a closed terminal) stop a run like
-    # Ctrl-C: KeyboardInterrupt, so the same clean-up runs and the exit status is 130.
+    # Ctrl-C (main's interrupt_on_signals): KeyboardInterrupt, so the same clean-up runs and the
+    # exit status is 130.
     try:
-        with interrupt_on_signals():
-            return command(args.command)(args)
+        return command(args.command)(args)
     except KeyboardInterrupt:
         if args.debug:
             traceback.print_exc()
