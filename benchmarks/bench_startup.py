@@ -8,6 +8,12 @@ kernel compilation or cache loading, decode, detect, track, draw, encode, CSV):
 
 ``python -m vehicle_detection.cli detect VIDEO --out TMP --boxes TMP --overwrite --no-progress``
 
+The runs import a copy of this checkout's package with its bytecode compiled first, as the
+README's ``python -m pip install .`` leaves an install (pip compiles the modules it installs).
+A checkout run where Python writes no bytecode (``PYTHONDONTWRITEBYTECODE``, as in many
+containers) compiles the package's modules from source at every start instead, about 0.2 s of
+one core; ``--source`` measures that (the copy without bytecode, none written).
+
 1. **cold**: the README's main job (``test_video.mp4``, 38 frames) with a fresh, empty
    ``NUMBA_CACHE_DIR``, so every numba kernel is compiled (a fresh install);
 2. **warm**: the same job again with the cache the cold run filled;
@@ -36,7 +42,9 @@ Extra arguments after ``--`` are passed to every ``detect`` run (e.g. ``-- --mod
 from __future__ import annotations
 
 import argparse
+import compileall
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -53,10 +61,30 @@ from bench_detection import ffmpeg_decode_encode, plain_decode_encode  # noqa: E
 from media import copy_packets, decoded_count  # noqa: E402  the tests' helpers for made-up clips
 
 
+#: Where the children import the package from (:func:`install_copy`); the checkout until then.
+PACKAGE_ROOT = REPO
+#: Whether the children may not write bytecode (``--source``).
+NO_BYTECODE = False
+
+
+def install_copy(tmp: Path, *, bytecode: bool) -> None:
+    """Copy the checkout's package into ``tmp`` for the children to import, with its bytecode
+    compiled as ``pip install .`` compiles it, or (``bytecode=False``) with none, and none written."""
+    global PACKAGE_ROOT, NO_BYTECODE
+    root = tmp / "site"
+    shutil.copytree(REPO / "vehicle_detection", root / "vehicle_detection",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    if bytecode and not compileall.compile_dir(root / "vehicle_detection", quiet=1):
+        raise SystemExit(f"could not compile {root / 'vehicle_detection'}")
+    PACKAGE_ROOT, NO_BYTECODE = root, not bytecode
+
+
 def _env(cache: Path) -> dict:
     env = dict(os.environ)
     env["NUMBA_CACHE_DIR"] = str(cache)
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env["PYTHONPATH"] = os.pathsep.join([str(PACKAGE_ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    if NO_BYTECODE:
+        env["PYTHONDONTWRITEBYTECODE"] = "1"
     return env
 
 
@@ -65,7 +93,7 @@ def run_detect(video: Path, tmp: Path, cache: Path, extra: list[str]) -> tuple[f
     cmd = [sys.executable, "-m", "vehicle_detection.cli", "detect", str(video), "--out", str(tmp / "out.mp4"),
            "--boxes", str(tmp / "out.csv"), "--overwrite", "--no-progress", *extra]
     t = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=_env(cache), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, env=_env(cache), cwd=PACKAGE_ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
     seconds = time.perf_counter() - t
     proc.returncode = os.waitstatus_to_exitcode(status)
@@ -96,8 +124,12 @@ def main():
                     help="also time the long clip's stages (process_video with a Timeline, in this process)")
     ap.add_argument("--kernels", action="store_true",
                     help="only each search kernel's compile time, one core, fresh cache (--runs times)")
+    ap.add_argument("--source", action="store_true",
+                    help="the package's modules compiled from source at every start (no bytecode), "
+                         "not as an install leaves them")
     args = ap.parse_args(argv)
-    print(f"{os.cpu_count()} cores, python {sys.version.split()[0]}, extra args {extra or 'none'}")
+    print(f"{os.cpu_count()} cores, python {sys.version.split()[0]}, extra args {extra or 'none'}, package "
+          + ("compiled from source at every start" if args.source else "bytecode compiled first, as `pip install .` does"))
     if args.kernels:
         for _ in range(args.runs):
             print_kernel_compile_times()
@@ -105,6 +137,7 @@ def main():
 
     with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp_name:
         tmp = Path(tmp_name)
+        install_copy(tmp, bytecode=not args.source)
         if not args.skip_start:
             cold, warm = [], []
             for i in range(args.runs):
@@ -192,7 +225,7 @@ def print_kernel_compile_times() -> None:
     """One fresh process on one core with an empty numba cache: each search kernel's compile time."""
     with tempfile.TemporaryDirectory(prefix="bench-kernels-") as cache:
         done = subprocess.run([sys.executable, "-c", _KERNEL_TIMES, str(REPO / "test_images" / "test1.jpg")],
-                              env=_env(Path(cache)), cwd=REPO, capture_output=True, text=True)
+                              env=_env(Path(cache)), cwd=PACKAGE_ROOT, capture_output=True, text=True)
     if done.returncode:
         raise SystemExit(f"kernel timing failed: {done.stderr[-2000:]}")
     print(done.stdout, end="", flush=True)
