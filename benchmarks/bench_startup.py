@@ -130,14 +130,13 @@ def main():
     args = ap.parse_args(argv)
     print(f"{os.cpu_count()} cores, python {sys.version.split()[0]}, extra args {extra or 'none'}, package "
           + ("compiled from source at every start" if args.source else "bytecode compiled first, as `pip install .` does"))
-    if args.kernels:
-        for _ in range(args.runs):
-            print_kernel_compile_times()
-        return
-
     with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp_name:
         tmp = Path(tmp_name)
         install_copy(tmp, bytecode=not args.source)
+        if args.kernels:
+            for _ in range(args.runs):
+                print_kernel_compile_times()
+            return
         if not args.skip_start:
             cold, warm = [], []
             for i in range(args.runs):
