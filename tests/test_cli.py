@@ -87,7 +87,7 @@ OPTIONS = {
     "train": ["--data-dir", "--model", "--C", "--drop-duplicates", "--extra-negatives", "--seed", "--json", "--overwrite", "--color-space",
               "--hog-channels", "--orientations", "--pixels-per-cell", "--cells-per-block", "--spatial-size",
               "--hist-bins", "--debug"],
-    "refine": ["--labels", "--out", "--model", "--alpha", "--json", "--overwrite", "--debug"],
+    "refine": ["--labels", "--out", "--model", "--alpha", "--mirror", "--json", "--overwrite", "--debug"],
     "sweep": ["--data-dir", "--color-spaces", "--hog-channels", "--orientations", "--pixels-per-cell",
               "--cells-per-block", "--color-features", "--subsample", "--jobs", "--json", "--debug"],
     "detect": ["input", "--out", "--boxes", "--model", "--overwrite", "--no-progress", "--debug"],
@@ -491,7 +491,7 @@ def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsy
     base, refined = load_default_model(), VehicleClassifier.load(out)
     # The penalty is the base model's (the embedded model's refinement was fitted with the default).
     assert base.metrics["box_refinement"]["alpha"] == REFINE_ALPHA
-    assert summary == {"n_frames": 26, "n_cars": 52, "alpha": REFINE_ALPHA, "seconds": summary["seconds"], "model": str(out)}
+    assert summary == {"n_frames": 26, "n_cars": 52, "alpha": REFINE_ALPHA, "mirror": False, "seconds": summary["seconds"], "model": str(out)}
     # The classifier, the search and the tracker settings are the base model's; the refinement is new.
     assert np.array_equal(refined.weights, base.weights) and refined.bias == base.bias
     assert refined.detector_config == base.detector_config
@@ -511,6 +511,25 @@ def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsy
     assert out.read_bytes() == before
     assert main(["refine", "--labels", str(labels), "--out", str(out), "--overwrite"]) == 0
     assert np.array_equal(VehicleClassifier.load(out).box_regressor.coef, refined.box_regressor.coef)
+
+
+def test_refine_mirror_learns_from_the_frames_flipped_and_later_refits_keep_it(tmp_path, capsys):
+    from vehicle_detection.classifier import VehicleClassifier
+
+    labels = REPO / "dev_set" / "test_images.json"  # six stills, nine cars
+    plain, mirrored, again = tmp_path / "plain.npz", tmp_path / "mirrored.npz", tmp_path / "again.npz"
+    assert main(["refine", "--labels", str(labels), "--out", str(plain)]) == 0
+    capsys.readouterr()
+    assert main(["refine", "--labels", str(labels), "--out", str(mirrored), "--mirror", "--json"]) == 0
+    assert last_json(capsys.readouterr().out)["mirror"] is True
+    a, b = VehicleClassifier.load(plain), VehicleClassifier.load(mirrored)
+    assert a.metrics["box_refinement"]["mirror"] is False and b.metrics["box_refinement"]["mirror"] is True
+    assert not np.allclose(a.box_regressor.coef, b.box_regressor.coef)
+    # refitted from a mirrored model without the flag: mirrored, as its base was; --no-mirror undoes it
+    assert main(["refine", "--labels", str(labels), "--model", str(mirrored), "--out", str(again)]) == 0
+    assert np.array_equal(VehicleClassifier.load(again).box_regressor.coef, b.box_regressor.coef)
+    assert main(["refine", "--labels", str(labels), "--model", str(mirrored), "--out", str(again), "--no-mirror", "--overwrite"]) == 0
+    assert np.array_equal(VehicleClassifier.load(again).box_regressor.coef, a.box_regressor.coef)
 
 
 @needs_archives

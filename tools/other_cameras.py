@@ -19,7 +19,9 @@ dusk between black bars in a small 16:9 frame (``PILLARBOX``: the bars' columns)
 never be searched; the ``letterbox`` view a wide picture (2.39:1) between black bars above and
 below (``LETTERBOX``: the bars' rows). The ``timestamp`` view is clip A with a dashcam's burned-in
 caption at its bottom left (date, time and speed, white on a black outline; the seconds and the
-speed change once a second): a static overlay, never to be boxed.
+speed change once a second): a static overlay, never to be boxed. The ``mirrored`` view is clip A
+flipped left to right: the road as a camera in left-hand traffic sees it (the United Kingdom,
+Japan, India, Australia), the cars to the left of the camera's lane, showing their right flanks.
 
 ``--only NAME [NAME ...]`` writes those views alone.
 """
@@ -59,6 +61,8 @@ CAMERAS = {
     "letterbox_1280x720": ((0, 90, 1280, 626), (1280, 536)),
     # clip A with a dashcam's caption burned in at the bottom left (TIMESTAMP)
     "timestamp_1280x720": ((0, 0, 1280, 720), (1280, 720)),
+    # left-hand traffic: clip A flipped left to right (MIRRORED)
+    "mirrored_1280x720": ((0, 0, 1280, 720), (1280, 720)),
 }
 #: name: columns of black bar added on each side of the view (its frame that much wider)
 PILLARBOX = {"dusk_0.35_pillarbox_640x360": 80}
@@ -66,16 +70,21 @@ PILLARBOX = {"dusk_0.35_pillarbox_640x360": 80}
 LETTERBOX = {"letterbox_1280x720": 92}
 #: views with a caption burned in
 TIMESTAMP = {"timestamp_1280x720"}
+#: views flipped left to right
+MIRRORED = {"mirrored_1280x720"}
 #: name: (light kept, noise standard deviation in levels) of the views with less light
 LIGHT = {"dusk_0.35_1280x720": (0.35, 4.0), "dusk_0.35_pillarbox_640x360": (0.35, 4.0), "dusk_0.2_1280x720": (0.2, 6.0), "dusk_0.2_tilted_down_960x540": (0.2, 6.0),
          "dusk_0.2_tilted_up_960x472": (0.2, 6.0)}
 
 
-def _move(box, crop, size, bar=0, top=0):
-    """``box`` moved into the view of ``crop`` resized to ``size``, then ``bar`` columns right and ``top`` rows down."""
+def _move(box, crop, size, bar=0, top=0, mirror=False):
+    """``box`` moved into the view of ``crop`` resized to ``size`` (flipped left to right with
+    ``mirror``), then ``bar`` columns right and ``top`` rows down."""
     x0, y0, x1, y1 = crop
     sx, sy = size[0] / (x1 - x0), size[1] / (y1 - y0)
     out = [(box[0] - x0) * sx, (box[1] - y0) * sy, (box[2] - x0) * sx, (box[3] - y0) * sy]
+    if mirror:
+        out = [size[0] - out[2], out[1], size[0] - out[0], out[3]]
     full = (out[2] - out[0]) * (out[3] - out[1])
     clipped = [max(0.0, out[0]), max(0.0, out[1]), min(size[0], out[2]), min(size[1], out[3])]
     inside = max(0.0, clipped[2] - clipped[0]) * max(0.0, clipped[3] - clipped[1])
@@ -109,6 +118,8 @@ def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
                 view = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), size, interpolation=cv2.INTER_AREA)
                 if name in LIGHT:
                     view = np.clip(np.rint(view * light + rng.normal(0.0, noise, view.shape)), 0, 255).astype(np.uint8)
+                if name in MIRRORED:
+                    view = np.ascontiguousarray(view[:, ::-1])
                 if name in TIMESTAMP:
                     view = _caption(view, index)
                 if bar or top:
@@ -123,9 +134,10 @@ def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
         doc["camera"] = name  # evaluate pools (and --report names) the files by camera
         for entry in doc["frames"].values():
             cars, ids = [], []
-            ignore = [b for b, share in (_move(b, crop, size, bar, top) for b in entry.get("ignore", [])) if share > 0]
+            mirror = name in MIRRORED
+            ignore = [b for b, share in (_move(b, crop, size, bar, top, mirror) for b in entry.get("ignore", [])) if share > 0]
             for i, box in enumerate(entry["cars"]):
-                moved, share = _move(box, crop, size, bar, top)
+                moved, share = _move(box, crop, size, bar, top, mirror)
                 if share >= 0.5:
                     cars.append(moved)
                     if "ids" in entry:

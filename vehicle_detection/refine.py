@@ -267,6 +267,11 @@ def crop_windows(frame: np.ndarray, windows: np.ndarray, side: int) -> np.ndarra
     return out
 
 
+def _mirrored(boxes: np.ndarray, width: int) -> np.ndarray:
+    """``boxes`` flipped left to right in a frame ``width`` pixels wide."""
+    return np.stack([width - boxes[:, 2], boxes[:, 1], width - boxes[:, 0], boxes[:, 3]], axis=1)
+
+
 def fit_box_regressor(
     samples: Iterable[tuple],
     config: FeatureConfig,
@@ -276,6 +281,7 @@ def fit_box_regressor(
     reference_height: int = 720,
     random_state: int = 0,
     hot_iou: float = 0.5,
+    mirror: bool = False,
 ) -> BoxRegressor:
     """Learn edge offsets from windows around labelled vehicles.
 
@@ -303,6 +309,11 @@ def fit_box_regressor(
         Seed of the jitter.
     hot_iou : float
         Smallest IoU of an accepted window with a labelled vehicle for it to count.
+    mirror : bool
+        Learn from each frame flipped left to right too, with the same windows flipped: the
+        refinement then moves a window on a mirrored scene as the mirror of its move on the
+        scene (a vehicle seen from its right as one seen from its left), so it holds in
+        left-hand and right-hand traffic alike, wherever the labelled vehicles drove.
 
     Returns
     -------
@@ -327,8 +338,14 @@ def fit_box_regressor(
             found, theirs = hot_window_targets(np.asarray(hot[0], np.float64).reshape(-1, 4) * f, boxes, hot_iou)
             new = beyond_jitter(found, theirs)
             wins, cars = np.concatenate([wins, found[new]]), np.concatenate([cars, theirs[new]])
+        wins = np.rint(wins)
         feats.append(extract_features(crop_windows(work, wins, config.window), config))
-        targets.append(edge_offsets(np.rint(wins), cars))
+        targets.append(edge_offsets(wins, cars))
+        if mirror:
+            width = work.shape[1]
+            flipped, flipped_cars = _mirrored(wins, width), _mirrored(cars, width)
+            feats.append(extract_features(crop_windows(np.ascontiguousarray(work[:, ::-1]), flipped, config.window), config))
+            targets.append(edge_offsets(flipped, flipped_cars))
     if not feats:
         raise ValueError("no labelled vehicles to learn box refinement from")
     x, y = np.concatenate(feats), np.concatenate(targets)

@@ -161,6 +161,9 @@ def _add_refine(sub) -> None:
     p.add_argument("--model", default=None, help="base model file (default: the embedded model)")
     p.add_argument("--alpha", type=_positive_float, default=None,
                    help=f"ridge penalty of the refinement (default: the base model's, else {REFINE_ALPHA:g})")
+    p.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=None,
+                   help="also learn from the frames flipped left to right, for left-hand and right-hand traffic alike "
+                        "(default: as the base model's refinement was fitted)")
     p.add_argument("--json", action="store_true", help="print a summary as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file (never an input)")
     _add_common(p)

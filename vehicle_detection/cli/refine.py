@@ -27,17 +27,18 @@ def run(args) -> int:
         raise InputError(f"{', '.join(map(str, args.labels))}: no labelled cars to fit the box refinement on")
     base = model.metrics.get("box_refinement", {})
     alpha = args.alpha if args.alpha is not None else base.get("alpha", REFINE_ALPHA)
+    mirror = args.mirror if args.mirror is not None else bool(base.get("mirror", False))
     tracker = model.detector_config.tracker
     # A model that refines already keeps its clustering and voting; one that does not gets the defaults.
     keep = {"cluster_iou": tracker.cluster_iou, "box_vote": tracker.box_vote} if model.box_regressor is not None else {}
     t = time.perf_counter()
-    refined = with_box_refinement(model, labels, alpha=alpha, **keep)
+    refined = with_box_refinement(model, labels, alpha=alpha, mirror=mirror, **keep)
     seconds = time.perf_counter() - t
     refined.save(args.out, overwrite=args.overwrite, inputs=inputs)
     say = human_print(args)
-    say(f"box refinement fitted on {n_cars} cars in {n_frames} labelled frames ({seconds:.1f} s, ridge penalty {alpha:g}); "
+    say(f"box refinement fitted on {n_cars} cars in {n_frames} labelled frames ({seconds:.1f} s, ridge penalty {alpha:g}{', mirrored frames too' if mirror else ''}); "
         f"classifier and search as in {args.model or 'the embedded model'}")
     say(f"model saved to {args.out}")
     if args.json:
-        print(json.dumps({"n_frames": n_frames, "n_cars": n_cars, "alpha": alpha, "seconds": round(seconds, 3), "model": str(args.out)}))
+        print(json.dumps({"n_frames": n_frames, "n_cars": n_cars, "alpha": alpha, "mirror": mirror, "seconds": round(seconds, 3), "model": str(args.out)}))
     return 0

@@ -195,7 +195,7 @@ def _searched_frames(model: VehicleClassifier, annotations) -> Iterator[tuple[np
 
 def with_box_refinement(
     model: VehicleClassifier, annotations, *, alpha: float = REFINE_ALPHA, cluster_iou: float = 0.3, box_vote: float = 0.5,
-    hot_iou: float | None = 0.5,
+    hot_iou: float | None = 0.5, mirror: bool = False,
 ) -> VehicleClassifier:
     """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
 
@@ -219,21 +219,26 @@ def with_box_refinement(
         (:func:`~vehicle_detection.refine.fit_box_regressor`): the rear of a car seen at an
         angle, for one. None: only windows jittered around the vehicles (the embedded model
         before 2026-11-26).
+    mirror : bool
+        Learn from the frames flipped left to right too
+        (:func:`~vehicle_detection.refine.fit_box_regressor`): a refinement for left-hand and
+        right-hand traffic alike.
     """
     if hot_iou is not None and not 0 < hot_iou <= 1:
         raise ValueError(f"hot_iou must be in (0, 1] or None; got {hot_iou!r}")
     t = time.perf_counter()
     if hot_iou is None:
         samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
-        regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height)
+        regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height,
+                                      mirror=mirror)
     else:
         regressor = fit_box_regressor(
             _searched_frames(model, annotations), model.config, alpha=alpha,
-            reference_height=model.detector_config.plan.reference_height, hot_iou=hot_iou,
+            reference_height=model.detector_config.plan.reference_height, hot_iou=hot_iou, mirror=mirror,
         )
     cfg = model.detector_config
     cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote))
-    metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "hot_iou": hot_iou, "seconds": round(time.perf_counter() - t, 3),
+    metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "hot_iou": hot_iou, "mirror": mirror, "seconds": round(time.perf_counter() - t, 3),
                                                     "labels": [str(a.path) for a in annotations]}}
     return model.replace(box_regressor=regressor, detector_config=cfg, metrics=metrics)
 
