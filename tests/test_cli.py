@@ -90,8 +90,8 @@ OPTIONS = {
     "refine": ["--labels", "--out", "--model", "--alpha", "--mirror", "--json", "--overwrite", "--debug"],
     "sweep": ["--data-dir", "--color-spaces", "--hog-channels", "--orientations", "--pixels-per-cell",
               "--cells-per-block", "--color-features", "--subsample", "--jobs", "--json", "--debug"],
-    "detect": ["input", "--out", "--boxes", "--model", "--overwrite", "--no-progress", "--debug"],
-    "evaluate": ["--video", "--labels", "--model", "--json", "--report", "--overwrite", "--no-progress", "--debug"],
+    "detect": ["input", "--out", "--boxes", "--model", "--traffic", "--overwrite", "--no-progress", "--debug"],
+    "evaluate": ["--video", "--labels", "--model", "--traffic", "--json", "--report", "--overwrite", "--no-progress", "--debug"],
     "mine-negatives": ["INPUT", "--labels", "--out", "--name", "--model", "--frames", "--every", "--threshold",
                        "--negative-region", "--max-gap", "--max-iou", "--max-car-cover", "--dedupe-iou", "--dedupe-frames",
                        "--overwrite", "--json", "--no-progress", "--debug"],
@@ -300,6 +300,22 @@ def _api_detect(path: Path):
 def _table_rows(table, frame):
     keep = table.frame == frame
     return [(b.tolist(), round(float(s), 4)) for b, s in zip(table.xyxy[keep], table.score[keep])]
+
+
+def test_detect_traffic_left_boxes_a_flipped_picture_where_right_boxes_the_picture(tmp_path):
+    import cv2
+
+    from vehicle_detection.geometry import mirror_boxes
+
+    picture = read_image(TEST_IMAGES / "test1.jpg")
+    as_is, flipped = tmp_path / "as_is.png", tmp_path / "flipped.png"  # lossless: the same pixels, flipped
+    cv2.imwrite(str(as_is), np.ascontiguousarray(picture[:, :, ::-1]))
+    cv2.imwrite(str(flipped), np.ascontiguousarray(picture[:, ::-1, ::-1]))
+    assert main(["detect", str(as_is), "--boxes", str(tmp_path / "a.csv"), "--no-video"]) == 0
+    assert main(["detect", str(flipped), "--traffic", "left", "--boxes", str(tmp_path / "b.csv"), "--no-video"]) == 0
+    a, b = read_boxes_csv(tmp_path / "a.csv"), read_boxes_csv(tmp_path / "b.csv")
+    assert len(a) == 2
+    assert sorted(a.xyxy.tolist()) == sorted(mirror_boxes(b.xyxy, picture.shape[1]).tolist())
 
 
 @needs_media

@@ -442,3 +442,43 @@ def test_a_cut_at_a_chunk_border_is_found_from_the_state():
     tracker = Tracker(tracker.config, tracker.state)
     after = det.step(frames[10], tracker)
     assert len(after) == 0 and tracker.state.tracks and all(t.track_id > before.track_id[0] for t in tracker.state.tracks)
+
+
+def test_config_traffic_setting_round_trips_and_is_checked():
+    cfg = DetectorConfig()
+    assert cfg.traffic == "right" and DetectorConfig.from_dict(cfg.to_dict()) == cfg
+    left = cfg.replace(traffic="left")
+    assert DetectorConfig.from_dict(left.to_dict()) == left and left.to_dict()["traffic"] == "left"
+    old = cfg.to_dict()
+    del old["traffic"]  # files saved before it: right-hand traffic, as every labelled frame was
+    assert DetectorConfig.from_dict(old).traffic == "right"
+    for bad in ("LEFT", "both", None, 1):
+        with pytest.raises(ValueError, match="traffic"):
+            DetectorConfig(traffic=bad)
+
+
+def test_left_hand_traffic_finds_in_a_flipped_frame_the_flipped_windows_and_boxes(test_frames):
+    # In left-hand traffic the picture is searched flipped: a frame flipped left to right, as a
+    # camera in left-hand traffic would see the road, gives exactly the flipped windows (margins,
+    # refined boxes) and boxes of the frame in right-hand traffic.
+    from vehicle_detection.geometry import mirror_boxes
+
+    right, left = Detector.load(), Detector.load(traffic="left")
+    assert left.config.traffic == "left" and right.config.traffic == "right"
+    found = 0
+    for frame in test_frames:
+        flipped, width = np.ascontiguousarray(frame[:, ::-1]), frame.shape[1]
+        a, b = right.windows(frame), left.windows(flipped)
+        mirrored = mirror_boxes(b.xyxy, width)
+        order_a, order_b = np.lexsort(a.xyxy.T[::-1]), np.lexsort(mirrored.T[::-1])
+        assert np.array_equal(a.xyxy[order_a], mirrored[order_b])
+        assert np.array_equal(a.score[order_a], b.score[order_b])
+        assert np.array_equal(a.data["box"][order_a], mirror_boxes(b.data["box"], width)[order_b])
+        boxes = right.detect_image(frame).xyxy
+        assert sorted(boxes.tolist()) == sorted(mirror_boxes(left.detect_image(flipped).xyxy, width).tolist())
+        found += len(boxes)
+    assert found >= 6
+    # and right-hand traffic's search of the flipped frame is not that: the model is not symmetric
+    flipped = np.ascontiguousarray(test_frames[0][:, ::-1])
+    a, b = right.windows(flipped), left.windows(flipped)
+    assert len(a) != len(b) or not np.array_equal(np.sort(a.score), np.sort(b.score))

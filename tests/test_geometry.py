@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies import box_sets
 
-from vehicle_detection.geometry import as_boxes, box_iou, match_boxes
+from vehicle_detection.geometry import as_boxes, box_iou, match_boxes, mirror_boxes
 
 
 # --------------------------------------------------------------------------------------------
@@ -131,3 +131,16 @@ def test_match_is_optimal_by_brute_force(n, m, data, threshold):
         best = max(best, (len(pairs), sum(iou[r, c] for r, c in pairs)))
     assert len(rows) == best[0]
     assert iou[rows, cols].sum() == pytest.approx(best[1])
+
+
+def test_mirror_boxes_flips_left_to_right_keeps_the_dtype_and_is_its_own_inverse():
+    boxes = np.array([[0, 5, 10, 20], [90, 0, 100, 7], [40, 40, 41, 41]], np.int64)
+    out = mirror_boxes(boxes, 100)
+    assert out.dtype == np.int64 and out.tolist() == [[90, 5, 100, 20], [0, 0, 10, 7], [59, 40, 60, 41]]
+    assert np.array_equal(mirror_boxes(out, 100), boxes) and boxes[0, 0] == 0  # the input untouched
+    # the pixels a box covers, flipped, are those its mirror covers
+    frame = np.zeros((50, 100), bool)
+    frame[5:20, 0:10] = True
+    x1, y1, x2, y2 = out[0]
+    assert np.array_equal(frame[:, ::-1], np.pad(np.ones((y2 - y1, x2 - x1), bool), ((y1, 50 - y2), (x1, 100 - x2))))
+    assert mirror_boxes(np.zeros((0, 4)), 100).shape == (0, 4)

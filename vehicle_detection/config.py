@@ -21,6 +21,9 @@ from .tracker import TrackerConfig
 
 __all__ = ["DetectorConfig"]
 
+#: The sides of the road traffic keeps to (:attr:`DetectorConfig.traffic`).
+TRAFFIC = ("right", "left")
+
 
 @dataclass(frozen=True)
 class DetectorConfig:
@@ -63,6 +66,14 @@ class DetectorConfig:
         Brighten dark footage (dusk, dark cameras) for the search
         (:mod:`~vehicle_detection.exposure`): a video measured on its first frames and at each
         cut, an image or a frame searched on its own on itself. None: searched as it is.
+    traffic : {"right", "left"}
+        The side of the road the footage's traffic keeps to. A model learns the traffic of its
+        labelled frames (right-hand, for the embedded model): which flank the cars beside the
+        camera show, and the cars themselves. With ``"left"`` (the United Kingdom, Japan, India,
+        Australia) each picture is searched flipped left to right, and its windows and refined
+        boxes are flipped back: the model sees right-hand traffic, and the boxes are where the
+        cars are. Everything else (bars, overlays, light, horizon, heat, tracks, side fit) works
+        on the frame as it is.
     """
 
     plan: SearchPlan = field(default_factory=SearchPlan)
@@ -74,6 +85,7 @@ class DetectorConfig:
     shot_cuts: ShotCuts | None = field(default_factory=ShotCuts)
     exposure: Exposure | None = field(default_factory=Exposure)
     car_horizon: CarHorizon | None = field(default_factory=CarHorizon)
+    traffic: str = "right"
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -95,6 +107,8 @@ class DetectorConfig:
             raise ValueError(f"DetectorConfig.exposure must be an Exposure or None; got {type(self.exposure).__name__}")
         if self.car_horizon is not None and not isinstance(self.car_horizon, CarHorizon):
             raise ValueError(f"DetectorConfig.car_horizon must be a CarHorizon or None; got {type(self.car_horizon).__name__}")
+        if self.traffic not in TRAFFIC:
+            raise ValueError(f"DetectorConfig.traffic must be 'right' or 'left'; got {self.traffic!r}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:
@@ -159,6 +173,7 @@ class DetectorConfig:
             "shot_cuts": None if self.shot_cuts is None else self.shot_cuts.to_dict(),
             "exposure": None if self.exposure is None else self.exposure.to_dict(),
             "car_horizon": None if self.car_horizon is None else self.car_horizon.to_dict(),
+            "traffic": self.traffic,
         }
 
     @classmethod
@@ -170,8 +185,8 @@ class DetectorConfig:
         footage without bars or static overlays, such as the project camera's); files saved
         before ``side_fit`` with None (their boxes as they were reported), before
         ``shot_cuts`` with None (their videos tracked as one shot), before ``exposure``
-        with None (dark footage searched as it is), and before ``car_horizon`` with None
-        (the horizon from the road's lines only).
+        with None (dark footage searched as it is), before ``car_horizon`` with None
+        (the horizon from the road's lines only), and before ``traffic`` with ``"right"``.
 
         Raises
         ------
@@ -179,7 +194,7 @@ class DetectorConfig:
             If a key is missing or unknown, or a value is out of range.
         """
         keys = {"plan", "tracker", "image_threshold"}
-        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts", "exposure", "car_horizon")
+        optional = ("auto_horizon", "auto_overlays", "side_fit", "shot_cuts", "exposure", "car_horizon", "traffic")
         if not isinstance(d, dict) or not keys <= set(d) <= keys | set(optional):
             raise ValueError(
                 "expected an object with 'plan', 'tracker', 'image_threshold' and optionally "
@@ -196,4 +211,5 @@ class DetectorConfig:
             shot_cuts=None if shot_cuts is None else ShotCuts.from_dict(shot_cuts),
             exposure=None if exposure is None else Exposure.from_dict(exposure),
             car_horizon=None if cars is None else CarHorizon.from_dict(cars),
+            traffic=d.get("traffic", "right"),
         )

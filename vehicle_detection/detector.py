@@ -33,7 +33,7 @@ from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
 from .exposure import brighten, exposure_gain, picture_level
-from .geometry import inset_boxes
+from .geometry import inset_boxes, mirror_boxes
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
 from .horizon import TOLERANCE, estimate_horizon, horizon_from_cars
 from .io.images import as_image, as_rgb_uint8
@@ -107,11 +107,14 @@ class Detector:
             raise ValueError(f"config must be a DetectorConfig; got {type(self.config).__name__}")
 
     @classmethod
-    def load(cls, path=None, *, horizon: float | str | None = None) -> Detector:
+    def load(cls, path=None, *, horizon: float | str | None = None, traffic: str | None = None) -> Detector:
         """A detector from a model file (the embedded model when ``path`` is None), with its
-        saved settings, searching at ``horizon`` (see :meth:`DetectorConfig.at_horizon`)."""
+        saved settings, searching at ``horizon`` (see :meth:`DetectorConfig.at_horizon`), for
+        ``traffic`` (``"right"`` or ``"left"``, :attr:`DetectorConfig.traffic`; None: the
+        model's setting)."""
         model = load_default_model() if path is None else VehicleClassifier.load(path)
-        return cls(model, model.detector_config.at_horizon(horizon))
+        config = model.detector_config.at_horizon(horizon)
+        return cls(model, config if traffic is None else config.replace(traffic=traffic))
 
     def __repr__(self) -> str:
         return f"Detector({self.model!r}, {self.config!r})"
@@ -323,17 +326,28 @@ class Detector:
         frame = as_rgb_uint8(frame, name="frame")
         overlays = self._picture(frame)
         if overlays is None or not overlays.cropped:
-            found = search(brighten(frame, self._search_gain(frame)), self.model, self.config.plan, around=around)
+            found = self._search(brighten(frame, self._search_gain(frame)), around)
         else:
             shift = np.array(overlays.area[:2] * 2)
             inside = None if around is None else np.asarray(around, np.float64).reshape(-1, 4) - shift
             picture = overlays.crop(frame)
-            found = search(brighten(picture, self._search_gain(picture)), self.model, self.config.plan, around=inside)
+            found = self._search(brighten(picture, self._search_gain(picture)), inside)
             data = {k: v + shift if k == "box" else v for k, v in found.data.items()}
             found = found.replace(xyxy=found.xyxy + shift, data=data)
         if self._mask_sums is None or not len(found):
             return found
         return found[mask_share(found.xyxy, self._mask_sums) <= MASKED_SHARE]
+
+    def _search(self, picture: np.ndarray, around: np.ndarray | None) -> Detections:
+        """:func:`~vehicle_detection.search.search` of ``picture``; in left-hand traffic
+        (``config.traffic``) of the picture flipped left to right, its windows flipped back."""
+        if self.config.traffic == "right":
+            return search(picture, self.model, self.config.plan, around=around)
+        width = picture.shape[1]
+        flipped = None if around is None else mirror_boxes(np.asarray(around, np.float64).reshape(-1, 4), width)
+        found = search(np.ascontiguousarray(picture[:, ::-1]), self.model, self.config.plan, around=flipped)
+        data = {k: mirror_boxes(v, width) if k == "box" else v for k, v in found.data.items()}
+        return found.replace(xyxy=mirror_boxes(found.xyxy, width), data=data)
 
     def _picture(self, frame: np.ndarray) -> Overlays | None:
         """The footage's overlays, else with ``auto_overlays`` the bars of ``frame`` itself, else None."""

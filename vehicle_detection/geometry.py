@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "inset_boxes", "match_boxes"]
+__all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "inset_boxes", "match_boxes", "mirror_boxes"]
 
 #: Coordinates beyond this are certainly errors (and would not fit 32-bit drawing code).
 MAX_COORD = 2**31 - 1
@@ -101,6 +101,16 @@ def inset_boxes(boxes: np.ndarray, inset: tuple[float, float, float, float]) -> 
     out = np.rint(np.stack([b[:, 0] + left * w, b[:, 1] + top * h, b[:, 2] - right * w, b[:, 3] - bottom * h], axis=1)).astype(np.int64)
     out[:, 2] = np.maximum(out[:, 2], out[:, 0] + 1)  # at least one pixel
     out[:, 3] = np.maximum(out[:, 3], out[:, 1] + 1)
+    return out
+
+
+def mirror_boxes(boxes: np.ndarray, width: float) -> np.ndarray:
+    """Boxes ``(n, 4)`` ``[x1, y1, x2, y2]`` (x2 exclusive) flipped left to right in a frame
+    ``width`` pixels wide: ``[width - x2, y1, width - x1, y2]``, in the boxes' dtype. Its own
+    inverse."""
+    b = np.asarray(boxes)
+    out = b.copy()
+    out[:, 0], out[:, 2] = width - b[:, 2], width - b[:, 0]
     return out
 
 

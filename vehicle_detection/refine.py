@@ -36,7 +36,7 @@ import numpy as np
 from ._jit import njit
 from ._settings import JsonSettings, number_in
 from .features import FeatureConfig, extract_features
-from .geometry import as_boxes, box_iou
+from .geometry import as_boxes, box_iou, mirror_boxes
 
 __all__ = [
     "BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "hot_window_targets", "beyond_jitter",
@@ -267,11 +267,6 @@ def crop_windows(frame: np.ndarray, windows: np.ndarray, side: int) -> np.ndarra
     return out
 
 
-def _mirrored(boxes: np.ndarray, width: int) -> np.ndarray:
-    """``boxes`` flipped left to right in a frame ``width`` pixels wide."""
-    return np.stack([width - boxes[:, 2], boxes[:, 1], width - boxes[:, 0], boxes[:, 3]], axis=1)
-
-
 def fit_box_regressor(
     samples: Iterable[tuple],
     config: FeatureConfig,
@@ -343,7 +338,7 @@ def fit_box_regressor(
         targets.append(edge_offsets(wins, cars))
         if mirror:
             width = work.shape[1]
-            flipped, flipped_cars = _mirrored(wins, width), _mirrored(cars, width)
+            flipped, flipped_cars = mirror_boxes(wins, width), mirror_boxes(cars, width)
             feats.append(extract_features(crop_windows(np.ascontiguousarray(work[:, ::-1]), flipped, config.window), config))
             targets.append(edge_offsets(flipped, flipped_cars))
     if not feats:

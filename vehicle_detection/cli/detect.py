@@ -131,7 +131,7 @@ def _detect_one(args, options: InputOptions, human) -> int:
     report = outputs.report if outputs.report is None or not beside else Path(beside).parent / outputs.report.name
     outputs = replace(outputs, annotated=Path(args.out) if args.out else outputs.annotated, tables=tables, report=report,
                       camera=None if args.save_camera is None else Path(args.save_camera))
-    detector = load_detector(args.model, args.horizon, args.full_search_every)
+    detector = load_detector(args.model, args.horizon, args.full_search_every, args.traffic)
     result = run_input(inp, options, detector=detector, outputs=outputs)
     _print_result(result, human)
     if args.json:
@@ -170,7 +170,7 @@ def _detect_many(args, options: InputOptions, human) -> int:
     def report(r: InputResult) -> None:
         _print_result(r, human)
 
-    detector = load_detector(args.model, args.horizon, args.full_search_every)
+    detector = load_detector(args.model, args.horizon, args.full_search_every, args.traffic)
     results = detect_many(
         args.inputs, args.out_dir, options, detector=detector, jobs=args.jobs, skip_existing=args.skip_existing,
         table=args.table, client=args.scheduler, chunk_frames=args.chunk_frames, on_result=report,

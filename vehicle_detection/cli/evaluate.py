@@ -61,7 +61,7 @@ def run(args) -> int:
     sources = _evaluate_sources(args, all_labels)
     if args.report:
         check_report_dir(args.report, overwrite=args.overwrite)
-    detector = None if args.boxes else load_detector(args.model, args.horizon)
+    detector = None if args.boxes else load_detector(args.model, args.horizon, traffic=args.traffic)
     camera = load_camera(args.camera)
     say = human_print(args)
     t = time.perf_counter()

@@ -38,9 +38,10 @@ def load_camera(path) -> Camera | None:
     return None if path is None else Camera.load(path)
 
 
-def load_detector(model_path, horizon: float | str | None = None, full_search_every: int | None = None) -> Detector:
-    """``--model``, ``--horizon`` and ``--full-search-every``: the detector."""
-    detector = Detector.load(model_path or None, horizon=horizon)
+def load_detector(model_path, horizon: float | str | None = None, full_search_every: int | None = None,
+                  traffic: str | None = None) -> Detector:
+    """``--model``, ``--horizon``, ``--full-search-every`` and ``--traffic``: the detector."""
+    detector = Detector.load(model_path or None, horizon=horizon, traffic=traffic)
     if full_search_every is None:
         return detector
     config = detector.config
