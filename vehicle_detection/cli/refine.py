@@ -36,9 +36,11 @@ def run(args) -> int:
     seconds = time.perf_counter() - t
     refined.save(args.out, overwrite=args.overwrite, inputs=inputs)
     say = human_print(args)
-    say(f"box refinement fitted on {n_cars} cars in {n_frames} labelled frames ({seconds:.1f} s, ridge penalty {alpha:g}{', mirrored frames too' if mirror else ''}); "
+    flipped = ", the frames flipped too" if mirror else ""
+    say(f"box refinement fitted on {n_cars} cars in {n_frames} labelled frames ({seconds:.1f} s, ridge penalty {alpha:g}{flipped}); "
         f"classifier and search as in {args.model or 'the embedded model'}")
     say(f"model saved to {args.out}")
     if args.json:
-        print(json.dumps({"n_frames": n_frames, "n_cars": n_cars, "alpha": alpha, "mirror": mirror, "seconds": round(seconds, 3), "model": str(args.out)}))
+        print(json.dumps({"n_frames": n_frames, "n_cars": n_cars, "alpha": alpha, "mirror": mirror, "seconds": round(seconds, 3),
+                          "model": str(args.out)}))
     return 0
