@@ -146,6 +146,13 @@ def _add_train(sub) -> None:
     _add_common(p)
 
 
+def _add_traffic(p) -> None:
+    p.add_argument("--traffic", choices=("right", "left"), default=None,
+                   help="the side of the road the footage's traffic keeps to: 'left' (the United Kingdom, Japan, India, "
+                   "Australia) searches each picture flipped left to right, as the model learned right-hand traffic "
+                   "(default: the model's setting, right)")
+
+
 def _add_refine(sub) -> None:
     p = sub.add_parser(
         "refine",
@@ -244,10 +251,7 @@ def _add_detect(sub) -> None:
                    help="the camera's horizon (where the road vanishes), as a fraction of the frame height from the top; "
                    "'auto' estimates it from the footage, 'plan' keeps the search bands where the model's plan has them "
                    "(made for the project camera, whose horizon is 0.583). Default: the model's setting (auto)")
-    p.add_argument("--traffic", choices=("right", "left"), default=None,
-                   help="the side of the road the footage's traffic keeps to: 'left' (the United Kingdom, Japan, India, "
-                   "Australia) searches each picture flipped left to right, as the model learned right-hand traffic "
-                   "(default: the model's setting, right)")
+    _add_traffic(p)
     p.add_argument("--full-search-every", type=_positive_int, default=None, metavar="N",
                    help="videos: search whole frames every N frames, in between only the frame edges, the horizon "
                    "and around tracked vehicles (default: the model's plan, 1: every frame whole)")
@@ -317,10 +321,7 @@ def _add_evaluate(sub) -> None:
                    help="the camera's horizon (where the road vanishes), as a fraction of the frame height from the top; "
                    "'auto' estimates it from the footage, 'plan' keeps the search bands where the model's plan has them "
                    "(made for the project camera, whose horizon is 0.583). Default: the model's setting (auto)")
-    p.add_argument("--traffic", choices=("right", "left"), default=None,
-                   help="the side of the road the footage's traffic keeps to: 'left' (the United Kingdom, Japan, India, "
-                   "Australia) searches each picture flipped left to right, as the model learned right-hand traffic "
-                   "(default: the model's setting, right)")
+    _add_traffic(p)
     p.add_argument("--camera", default=None, metavar="CAMERA.json",
                    help="undistort every frame with this camera file before the search (the boxes are mapped back to the "
                    "original frames, where the labels are, before scoring)")
