@@ -482,3 +482,28 @@ def test_left_hand_traffic_finds_in_a_flipped_frame_the_flipped_windows_and_boxe
     flipped = np.ascontiguousarray(test_frames[0][:, ::-1])
     a, b = right.windows(flipped), left.windows(flipped)
     assert len(a) != len(b) or not np.array_equal(np.sort(a.score), np.sort(b.score))
+
+
+def test_patches_are_what_the_classifier_scored_in_either_traffic(test_frames):
+    # Left-hand traffic's windows lie on the flipped picture's grid: its patches are cut there, so
+    # a flipped frame gives exactly the patches of the frame in right-hand traffic.
+    right, left = Detector.load(), Detector.load(traffic="left")
+    frame = test_frames[0]
+    flipped = np.ascontiguousarray(frame[:, ::-1])
+    a, b = right.windows(frame), left.windows(flipped)
+    pa, pb = right.patches(frame, a), left.patches(flipped, b)
+    order_a, order_b = np.argsort(a.score, kind="stable"), np.argsort(b.score, kind="stable")
+    assert len(a) > 10 and np.array_equal(pa[order_a], pb[order_b])
+    # inside black bars too: the windows are cut from the picture the search saw
+    barred = np.zeros((720, 1480, 3), np.uint8)
+    barred[:, 100:1380] = flipped
+    wins = left.windows(barred)
+    scores = left.model.decision_images(left.patches(barred, wins))
+    assert len(wins) == len(b) and np.corrcoef(scores, wins.score)[0, 1] > 0.9
+
+
+def test_a_model_saved_for_left_hand_traffic_loads_for_it(tmp_path, default_model):
+    path = tmp_path / "left.npz"
+    default_model.replace(detector_config=default_model.detector_config.replace(traffic="left")).save(path)
+    assert Detector.load(path).config.traffic == "left"
+    assert Detector.load(path, traffic="right").config.traffic == "right"

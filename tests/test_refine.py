@@ -453,16 +453,12 @@ def test_box_refinement_learns_from_the_windows_the_detector_accepts(monkeypatch
     assert accepted > 0
 
 
-def _mirror(boxes, width):
-    b = np.asarray(boxes, np.float64).reshape(-1, 4)
-    return np.stack([width - b[:, 2], b[:, 1], width - b[:, 0], b[:, 3]], axis=1)
-
-
 def test_a_refinement_fitted_with_mirrored_frames_moves_mirrored_windows_the_mirrored_way():
     # Cars seen at an angle, always with their rear at the left end: a plain refinement learns
     # to move a window on the rear to the right; fitted with the frames mirrored too, it moves
     # a mirrored window to the left just as far (a car in left-hand traffic).
     from vehicle_detection.features import extract_features
+    from vehicle_detection.geometry import mirror_boxes
 
     rng = np.random.default_rng(3)
     train = [_long_car(rng) for _ in range(12)]
@@ -473,7 +469,7 @@ def test_a_refinement_fitted_with_mirrored_frames_moves_mirrored_windows_the_mir
         for frame, _, rear in (_long_car(rng) for _ in range(8)):
             flipped, width = np.ascontiguousarray(frame[:, ::-1]), frame.shape[1]
             move = reg.offsets(extract_features(crop_windows(frame, rear, SMALL.window), SMALL))
-            back = reg.offsets(extract_features(crop_windows(flipped, _mirror(rear, width), SMALL.window), SMALL))
+            back = reg.offsets(extract_features(crop_windows(flipped, mirror_boxes(rear, width), SMALL.window), SMALL))
             # the mirror of a move [left, top, right, bottom] is [-right, top, -left, bottom]
             gap.append(np.abs(back - move[:, [2, 1, 0, 3]] * [-1, 1, -1, 1]).max())
         gaps[mirror] = max(gap)
@@ -481,3 +477,42 @@ def test_a_refinement_fitted_with_mirrored_frames_moves_mirrored_windows_the_mir
     # mirrored patch's HOG is near, not exactly, a permutation of the patch's
     assert gaps[True] < 0.06
     assert gaps[False] > 0.3
+
+
+def test_labelled_frames_of_left_hand_traffic_teach_the_refinement_as_the_search_sees_them(tmp_path, default_model):
+    # The test images flipped, labelled where their cars are, and learned as left-hand traffic:
+    # flipped back as the detector's search flips them, they teach exactly what the images do.
+    import json
+
+    import cv2
+
+    from vehicle_detection.geometry import mirror_boxes
+    from vehicle_detection.metrics.detection import load_annotations
+    from vehicle_detection.training.fit import with_box_refinement
+
+    repo = Path(__file__).resolve().parents[1]
+    doc = json.loads((repo / "dev_set" / "test_images.json").read_text())
+    folder = tmp_path / "flipped"
+    folder.mkdir()
+    for entry in doc["frames"].values():
+        image = cv2.imread(str(repo / "test_images" / entry["file"]))
+        cv2.imwrite(str(folder / Path(entry["file"]).with_suffix(".png")), np.ascontiguousarray(image[:, ::-1]))
+        entry["file"] = str(Path(entry["file"]).with_suffix(".png"))
+        for key in ("cars", "ignore"):
+            entry[key] = mirror_boxes(np.array(entry[key], np.int64).reshape(-1, 4), image.shape[1]).tolist()
+    doc["video"] = str(folder)
+    (tmp_path / "flipped.json").write_text(json.dumps(doc))
+    # the originals, losslessly, so that flipping back gives their pixels
+    same = tmp_path / "same"
+    same.mkdir()
+    for entry in doc["frames"].values():
+        cv2.imwrite(str(same / entry["file"]), cv2.imread(str(folder / entry["file"]))[:, ::-1])
+    (tmp_path / "same.json").write_text(json.dumps({**doc, "frames": json.loads((repo / "dev_set" / "test_images.json").read_text())["frames"],
+                                                     "video": str(same)}).replace(".jpg", ".png"))
+    left = with_box_refinement(default_model, [load_annotations(tmp_path / "flipped.json")], traffic="left")
+    right = with_box_refinement(default_model, [load_annotations(tmp_path / "same.json")])
+    assert left.detector_config.traffic == "left" and right.detector_config.traffic == "right"
+    assert np.array_equal(left.box_regressor.coef, right.box_regressor.coef)
+    # learned as right-hand traffic, the flipped frames teach something else
+    other = with_box_refinement(default_model, [load_annotations(tmp_path / "flipped.json")], traffic="right")
+    assert not np.allclose(other.box_regressor.coef, right.box_regressor.coef)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Literal
 
 from .exposure import Exposure
 from .horizon import CarHorizon
@@ -85,7 +85,7 @@ class DetectorConfig:
     shot_cuts: ShotCuts | None = field(default_factory=ShotCuts)
     exposure: Exposure | None = field(default_factory=Exposure)
     car_horizon: CarHorizon | None = field(default_factory=CarHorizon)
-    traffic: str = "right"
+    traffic: Literal["right", "left"] = "right"
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, SearchPlan):
@@ -108,7 +108,7 @@ class DetectorConfig:
         if self.car_horizon is not None and not isinstance(self.car_horizon, CarHorizon):
             raise ValueError(f"DetectorConfig.car_horizon must be a CarHorizon or None; got {type(self.car_horizon).__name__}")
         if self.traffic not in TRAFFIC:
-            raise ValueError(f"DetectorConfig.traffic must be 'right' or 'left'; got {self.traffic!r}")
+            raise ValueError(f"DetectorConfig.traffic must be one of {', '.join(map(repr, TRAFFIC))}; got {self.traffic!r}")
 
     @classmethod
     def library_0_1(cls) -> DetectorConfig:

@@ -40,7 +40,7 @@ from .io.images import as_image, as_rgb_uint8
 from .io.timeline import Timeline, timing
 from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
 from .refine import fit_sides
-from .search import search
+from .search import search, window_patches
 from .shots import next_shot
 from .tracker import Tracker, TrackerState, window_heat
 
@@ -322,6 +322,9 @@ class Detector:
         -------
         Detections
             The windows in frame pixels, their SVM margins as ``score`` and ``data["scale_index"]``.
+            In left-hand traffic (``config.traffic``) the picture is searched flipped left to right
+            and the windows flipped back, so they lie on the flipped picture's grid, not the
+            frame's: :meth:`patches` cuts what the classifier scored.
         """
         frame = as_rgb_uint8(frame, name="frame")
         overlays = self._picture(frame)
@@ -337,6 +340,25 @@ class Detector:
         if self._mask_sums is None or not len(found):
             return found
         return found[mask_share(found.xyxy, self._mask_sums) <= MASKED_SHARE]
+
+    def patches(self, frame: np.ndarray, windows: Detections) -> np.ndarray:
+        """The patches the classifier scored for ``windows``, windows :meth:`windows` found in
+        ``frame``: cut from the picture it searched (inside the bars, brightened, flipped in
+        left-hand traffic) by :func:`~vehicle_detection.search.window_patches`.
+
+        Returns
+        -------
+        ndarray of uint8, shape (len(windows), window, window, 3)
+        """
+        frame = as_rgb_uint8(frame, name="frame")
+        overlays = self._picture(frame)
+        boxes = np.asarray(windows.xyxy)
+        if overlays is not None and overlays.cropped:
+            frame, boxes = overlays.crop(frame), boxes - np.array(overlays.area[:2] * 2)
+        picture = brighten(frame, self._search_gain(frame))
+        if self.config.traffic == "left":
+            picture, boxes = np.ascontiguousarray(picture[:, ::-1]), mirror_boxes(boxes, picture.shape[1])
+        return window_patches(picture, windows.replace(xyxy=boxes), self.model, self.config.plan)
 
     def _search(self, picture: np.ndarray, around: np.ndarray | None) -> Detections:
         """:func:`~vehicle_detection.search.search` of ``picture``; in left-hand traffic

@@ -334,13 +334,13 @@ def fit_box_regressor(
             new = beyond_jitter(found, theirs)
             wins, cars = np.concatenate([wins, found[new]]), np.concatenate([cars, theirs[new]])
         wins = np.rint(wins)
-        feats.append(extract_features(crop_windows(work, wins, config.window), config))
+        crops = crop_windows(work, wins, config.window)
+        feats.append(extract_features(crops, config))
         targets.append(edge_offsets(wins, cars))
-        if mirror:
+        if mirror:  # each window flipped, as it is in the frame flipped
             width = work.shape[1]
-            flipped, flipped_cars = mirror_boxes(wins, width), mirror_boxes(cars, width)
-            feats.append(extract_features(crop_windows(np.ascontiguousarray(work[:, ::-1]), flipped, config.window), config))
-            targets.append(edge_offsets(flipped, flipped_cars))
+            feats.append(extract_features(np.ascontiguousarray(crops[:, :, ::-1]), config))
+            targets.append(edge_offsets(mirror_boxes(wins, width), mirror_boxes(cars, width)))
     if not feats:
         raise ValueError("no labelled vehicles to learn box refinement from")
     x, y = np.concatenate(feats), np.concatenate(targets)

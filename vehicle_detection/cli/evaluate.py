@@ -58,6 +58,8 @@ def run(args) -> int:
         raise UsageError("--video applies to one labels file; with several, each names its own video")
     if args.camera and args.boxes:
         raise UsageError("--camera applies when the detector runs, not to --boxes")
+    if args.traffic and args.boxes:
+        raise UsageError("--traffic applies when the detector runs, not to --boxes")
     sources = _evaluate_sources(args, all_labels)
     if args.report:
         check_report_dir(args.report, overwrite=args.overwrite)

@@ -86,7 +86,7 @@ def run(args) -> int:
         raise OutputError(f"{dest}: output exists; pass --overwrite to replace it")
     if args.horizon == "auto":
         raise UsageError("mine-negatives --horizon takes a fraction of the frame height (or 'plan'), not 'auto'")
-    detector = load_detector(args.model, args.horizon)
+    detector = load_detector(args.model, args.horizon, traffic=args.traffic)
     t = time.perf_counter()
 
     def progress(name, index):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 
 from .. import __version__
+from ..config import TRAFFIC
 from ..features import COLOR_SPACES, FeatureConfig
 from ..io.video import X264_PRESETS
 from ..refine import REFINE_ALPHA
@@ -123,6 +124,15 @@ def _add_download(sub) -> None:
     _add_common(p)
 
 
+def _add_traffic(p, learned: bool = False, default: str = "the model's setting; the embedded model's is right") -> None:
+    """``--traffic``: of the footage searched, or (``learned``) of the labelled frames learned from."""
+    what = ("the labelled frames are learned flipped left to right, as the detector searches such footage, and the "
+            "model is saved for left-hand traffic") if learned else "each picture is searched flipped left to right"
+    p.add_argument("--traffic", choices=TRAFFIC, default=None,
+                   help=f"the side of the road the traffic keeps to: with 'left' (the United Kingdom, Japan, India, "
+                   f"Australia) {what} (default: {default})")
+
+
 def _add_train(sub) -> None:
     p = sub.add_parser("train", help="train a classifier and report its accuracy")
     p.add_argument("--data-dir", default=None, help="folder with vehicles.zip and non-vehicles.zip (default: $VEHICLE_DETECTION_DATA or ./data)")
@@ -140,17 +150,11 @@ def _add_train(sub) -> None:
                    "JPEG artefacts) for other cameras and light; a copy is trained on only where its source patch is "
                    "(default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits and of the augmentation")
+    _add_traffic(p, learned=True, default="right")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")
     _add_feature_options(p)
     _add_common(p)
-
-
-def _add_traffic(p) -> None:
-    p.add_argument("--traffic", choices=("right", "left"), default=None,
-                   help="the side of the road the footage's traffic keeps to: 'left' (the United Kingdom, Japan, India, "
-                   "Australia) searches each picture flipped left to right, as the model learned right-hand traffic "
-                   "(default: the model's setting, right)")
 
 
 def _add_refine(sub) -> None:
@@ -171,6 +175,7 @@ def _add_refine(sub) -> None:
     p.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=None,
                    help="also learn from the frames flipped left to right, for left-hand and right-hand traffic alike "
                         "(default: as the base model's refinement was fitted)")
+    _add_traffic(p, learned=True, default="the base model's setting")
     p.add_argument("--json", action="store_true", help="print a summary as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file (never an input)")
     _add_common(p)
@@ -355,6 +360,7 @@ def _add_mine_negatives(sub) -> None:
     p.add_argument("--horizon", type=_horizon, default=None, metavar="FRACTION",
                    help="search bands at this horizon (a fraction of the frame height from the top), for footage of "
                    "another camera; default: the plan's bands")
+    _add_traffic(p)
     p.add_argument("--frames", default=None, metavar="RANGES",
                    help="only these frame indexes, e.g. 0-89,160-250 (inclusive; default all)")
     p.add_argument("--every", type=_positive_int, default=1, metavar="K", help="search every K-th frame (default %(default)s)")

@@ -32,7 +32,7 @@ def run(args) -> int:
     # A model that refines already keeps its clustering and voting; one that does not gets the defaults.
     keep = {"cluster_iou": tracker.cluster_iou, "box_vote": tracker.box_vote} if model.box_regressor is not None else {}
     t = time.perf_counter()
-    refined = with_box_refinement(model, labels, alpha=alpha, mirror=mirror, **keep)
+    refined = with_box_refinement(model, labels, alpha=alpha, mirror=mirror, traffic=args.traffic, **keep)
     seconds = time.perf_counter() - t
     refined.save(args.out, overwrite=args.overwrite, inputs=inputs)
     say = human_print(args)

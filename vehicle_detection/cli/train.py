@@ -52,11 +52,13 @@ def run(args) -> int:
     ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates, extra_negatives=args.extra_negatives)
     load_s = time.perf_counter() - t
     labels = [load_annotations(p) for p in args.labels]
+    traffic = args.traffic or "right"
     if labels:
-        ds = ds.concatenate(labelled_dataset(labels))
+        ds = ds.concatenate(labelled_dataset(labels, flip=traffic == "left"))
     check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
     augment = AugmentConfig(copies=args.augment)
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed, augment=augment)
+    model = model.replace(detector_config=model.detector_config.replace(traffic=traffic))
     if labels:
         model = with_box_refinement(model, labels)
     extra = {}

@@ -175,27 +175,30 @@ def train(
     return model.replace(metrics=metrics)
 
 
-def _searched_frames(model: VehicleClassifier, annotations) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def _searched_frames(model: VehicleClassifier, annotations, flip: bool = False) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``(frame, cars, windows)`` of every labelled frame: the windows ``model``'s detector
     accepts there (none searched in a frame without cars). A video is searched at the horizon,
     bars and light measured on its first frames, as ``detect`` starts it; unlike ``detect``, they
-    are not measured again after a cut between shots. An image is searched on its own."""
+    are not measured again after a cut between shots. An image is searched on its own.
+    ``flip``: the frames (and their labels) flipped left to right, searched as right-hand
+    traffic (:func:`~vehicle_detection.training.mining.labelled_frames`)."""
     from ..detector import Detector  # the search, only when labels are given
     from ..io.video import read_frames
 
     for ann in annotations:
-        detector = Detector(model, model.detector_config)
+        detector = Detector(model, model.detector_config.replace(traffic="right"))
         source = ann.source
         if source is not None and source.is_file():
             with closing(read_frames(source)) as frames:
-                detector, _ = detector.for_footage(frames, detector.new_tracker())
-        for _, frame, labels in labelled_frames(ann):
+                pictures = (np.ascontiguousarray(f[:, ::-1]) for f in frames) if flip else frames
+                detector, _ = detector.for_footage(pictures, detector.new_tracker())
+        for _, frame, labels in labelled_frames(ann, flip=flip):
             yield frame, labels.cars, detector.windows(frame).xyxy if len(labels.cars) else np.zeros((0, 4), np.int64)
 
 
 def with_box_refinement(
     model: VehicleClassifier, annotations, *, alpha: float = REFINE_ALPHA, cluster_iou: float = 0.3, box_vote: float = 0.5,
-    hot_iou: float | None = 0.5, mirror: bool = False,
+    hot_iou: float | None = 0.5, mirror: bool = False, traffic: str | None = None,
 ) -> VehicleClassifier:
     """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
 
@@ -223,21 +226,24 @@ def with_box_refinement(
         Learn from the frames flipped left to right too
         (:func:`~vehicle_detection.refine.fit_box_regressor`): a refinement for left-hand and
         right-hand traffic alike.
+    traffic : {"right", "left"} or None
+        The traffic of the labelled frames (None: ``model``'s setting,
+        :attr:`~vehicle_detection.config.DetectorConfig.traffic`). Frames of left-hand traffic
+        are learned flipped left to right, as the detector searches them, and the model is saved
+        for left-hand traffic.
     """
     if hot_iou is not None and not 0 < hot_iou <= 1:
         raise ValueError(f"hot_iou must be in (0, 1] or None; got {hot_iou!r}")
+    cfg = model.detector_config
+    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote),
+                      traffic=cfg.traffic if traffic is None else traffic)
+    flip = cfg.traffic == "left"
     t = time.perf_counter()
     if hot_iou is None:
-        samples = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann))
-        regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=model.detector_config.plan.reference_height,
-                                      mirror=mirror)
+        samples, accepted = ((frame, labels.cars) for ann in annotations for _, frame, labels in labelled_frames(ann, flip=flip)), {}
     else:
-        regressor = fit_box_regressor(
-            _searched_frames(model, annotations), model.config, alpha=alpha,
-            reference_height=model.detector_config.plan.reference_height, hot_iou=hot_iou, mirror=mirror,
-        )
-    cfg = model.detector_config
-    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote))
+        samples, accepted = _searched_frames(model, annotations, flip), {"hot_iou": hot_iou}
+    regressor = fit_box_regressor(samples, model.config, alpha=alpha, reference_height=cfg.plan.reference_height, mirror=mirror, **accepted)
     metrics = {**model.metrics, "box_refinement": {"alpha": alpha, "hot_iou": hot_iou, "mirror": mirror, "seconds": round(time.perf_counter() - t, 3),
                                                     "labels": [str(a.path) for a in annotations]}}
     return model.replace(box_regressor=regressor, detector_config=cfg, metrics=metrics)

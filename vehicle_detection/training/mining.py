@@ -54,13 +54,12 @@ from ..detections import Detections
 from ..deprecation import old_keywords
 from ..detector import Detector
 from ..errors import InputError, OutputError
-from ..geometry import box_area, box_intersection, box_iou, match_boxes
+from ..geometry import box_area, box_intersection, box_iou, match_boxes, mirror_boxes
 from ..io import PARTIAL_SUFFIX, refuse_inputs, umask
 from ..io.images import list_images, read_image
 from ..io.video import probe_video, read_frames
 from ..metrics.detection import Annotations, FrameLabels, check_boxes_inside
 from ..refine import crop_windows, jittered_windows, working_frame
-from ..search import window_patches
 from .data import MINED_NAME, Dataset
 
 __all__ = [
@@ -283,10 +282,13 @@ def _frames_of(path: Path, labels: Annotations | None = None) -> Iterator[tuple[
         )
 
 
-def labelled_frames(annotations: Annotations, source: str | os.PathLike | None = None) -> Iterator[tuple[int, np.ndarray, FrameLabels]]:
+def labelled_frames(annotations: Annotations, source: str | os.PathLike | None = None, *,
+                    flip: bool = False) -> Iterator[tuple[int, np.ndarray, FrameLabels]]:
     """``(index, frame, labels)`` of every labelled frame of an annotation file's video or folder.
 
-    ``source`` replaces the video or folder the file names. Raises :class:`InputError` if the
+    ``source`` replaces the video or folder the file names. ``flip``: each frame flipped left to
+    right, and its labels with it (frames of left-hand traffic, learned as right-hand traffic:
+    :attr:`~vehicle_detection.config.DetectorConfig.traffic`). Raises :class:`InputError` if the
     labels do not fit it (see :func:`_frames_of`).
     """
     source = annotations.source if source is None else Path(source)
@@ -295,7 +297,12 @@ def labelled_frames(annotations: Annotations, source: str | os.PathLike | None =
     last = max(annotations.frames, default=-1)
     for index, load in _frames_of(source, annotations):
         if index in annotations.frames:
-            yield index, load(), annotations.frames[index]
+            frame, labels = load(), annotations.frames[index]
+            if flip:
+                width = frame.shape[1]
+                frame = np.ascontiguousarray(frame[:, ::-1])
+                labels = dataclasses.replace(labels, cars=mirror_boxes(labels.cars, width), ignore=mirror_boxes(labels.ignore, width))
+            yield index, frame, labels
         if index >= last:
             return
 
@@ -322,11 +329,14 @@ def vehicle_patches(
     return crop_windows(work, wins, side)
 
 
-def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 12, block: int = 30, random_state: int = 0) -> Dataset:
+def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 12, block: int = 30, random_state: int = 0,
+                     flip: bool = False) -> Dataset:
     """Vehicle patches (:func:`vehicle_patches`) of every car of labelled frames, as training data.
 
     Each annotation file is a source ``vehicles/labelled_<input>``; its patches are grouped by
     blocks of ``block`` frames, so a grouped split keeps neighbouring frames on one side.
+    ``flip``: the frames flipped left to right (:func:`labelled_frames`), for frames of left-hand
+    traffic.
     """
     rng = np.random.default_rng(random_state)
     for ann in annotations:
@@ -337,7 +347,7 @@ def labelled_dataset(annotations: Sequence[Annotations], *, per_car: int = 12, b
     parts = []
     for ann in annotations:
         name = _input_name(ann.source)
-        for index, frame, labels in labelled_frames(ann):
+        for index, frame, labels in labelled_frames(ann, flip=flip):
             patches = vehicle_patches(frame, labels.cars, rng, per_car=per_car)
             names = [f"vehicles/labelled_{name}/{name}__f{index}__{k}.png" for k in range(len(patches))]
             parts.append((patches, names, f"{name}/{index // block}"))
@@ -495,7 +505,7 @@ def _mine(source: MiningSource, name: str, detector: Detector, options: MiningOp
         wins = wins[np.argsort(-wins.score, kind="stable")]  # hardest first
         while recent and recent[0][0] < index - options.dedupe_frames:
             recent.popleft()
-        crops = window_patches(frame, wins, detector.model, detector.config.plan)
+        crops = detector.patches(frame, wins)
         keep = _new_windows(wins, crops, recent, seen, options.dedupe_iou)
         st["duplicates"] += int(len(wins) - keep.sum())
         st["kept"] += int(keep.sum())
