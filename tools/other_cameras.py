@@ -128,13 +128,13 @@ def make_camera(name: str, crop, size, out_dir: Path) -> list[Path]:
     finally:
         frames.close()
     written = [video]
+    mirror = name in MIRRORED
     for labels in ("clip_A", "clip_A_tracks"):
         doc = json.loads((DEV_SET / f"{labels}.json").read_text())
         doc["video"] = video.name
         doc["camera"] = name  # evaluate pools (and --report names) the files by camera
         for entry in doc["frames"].values():
             cars, ids = [], []
-            mirror = name in MIRRORED
             ignore = [b for b, share in (_move(b, crop, size, bar, top, mirror) for b in entry.get("ignore", [])) if share > 0]
             for i, box in enumerate(entry["cars"]):
                 moved, share = _move(box, crop, size, bar, top, mirror)

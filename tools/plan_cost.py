@@ -31,8 +31,10 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=None, help="rounds (default 4; 3 with --scales)")
     ap.add_argument("--frames", type=int, default=None, help="frames of clip A (default 40; 30 with --scales)")
     args = ap.parse_args()
-    if (args.model_b is None) != args.scales or (args.model_a is None and not args.scales):
+    two_models = args.model_a is not None and args.model_b is not None
+    if two_models == args.scales:
         ap.error("give two models, or --scales and at most one")
+    rounds = args.rounds if args.rounds is not None else (3 if args.scales else 4)
 
     import vehicle_detection as vd
     from vehicle_detection.search import search
@@ -43,14 +45,13 @@ def main() -> None:
         if len(frames) >= (args.frames or (30 if args.scales else 40)):
             break
     if args.scales:
-        per_scale(vd.VehicleClassifier.load(args.model_a) if args.model_a else vd.load_default_model(), frames, args.rounds or 3)
+        per_scale(vd.VehicleClassifier.load(args.model_a) if args.model_a else vd.load_default_model(), frames, rounds)
         return
     models = {"A": vd.VehicleClassifier.load(args.model_a), "B": vd.VehicleClassifier.load(args.model_b)}
-    args.rounds = args.rounds or 4
     for model in models.values():
         search(frames[0], model)  # kernels loaded, work arrays made
     ms = {"A": [], "B": []}
-    for r in range(args.rounds):
+    for r in range(rounds):
         for name in ("AB" if r % 2 == 0 else "BA"):
             t = time.perf_counter()
             for frame in frames:
@@ -71,7 +72,7 @@ def per_scale(model, frames: list, rounds: int) -> None:
 
     cv2.setNumThreads(1)  # the search's resizes on this thread, as in one search worker
     plan = model.detector_config.plan
-    plans = {f"{64 * s.scale:.0f} px": dataclasses.replace(plan, scales=(s,)) for s in plan.scales}
+    plans = {f"{model.config.window * s.scale:.0f} px": dataclasses.replace(plan, scales=(s,)) for s in plan.scales}
     plans["all"] = plan
     search(frames[0], model, plan)  # kernels loaded, work arrays made
     ms: dict = {name: [] for name in plans}

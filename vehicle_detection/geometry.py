@@ -104,11 +104,28 @@ def inset_boxes(boxes: np.ndarray, inset: tuple[float, float, float, float]) -> 
     return out
 
 
-def mirror_boxes(boxes: np.ndarray, width: float) -> np.ndarray:
-    """Boxes ``(n, 4)`` ``[x1, y1, x2, y2]`` (x2 exclusive) flipped left to right in a frame
-    ``width`` pixels wide: ``[width - x2, y1, width - x1, y2]``, in the boxes' dtype. Its own
-    inverse."""
-    b = np.asarray(boxes)
+def mirror_boxes(boxes: ArrayLike, width: int) -> np.ndarray:
+    """Boxes flipped left to right in a frame ``width`` pixels wide.
+
+    Parameters
+    ----------
+    boxes : array_like, shape (n, 4) or (4,)
+        ``[x1, y1, x2, y2]``, x2 exclusive.
+    width : int
+        The frame's width in pixels.
+
+    Returns
+    -------
+    ndarray, shape (n, 4)
+        ``[width - x2, y1, width - x1, y2]``, in the boxes' dtype: the pixels a box covers in the
+        frame, flipped, are those its mirror covers. The function is its own inverse.
+
+    Examples
+    --------
+    >>> mirror_boxes([[0, 5, 10, 20]], 100).tolist()
+    [[90, 5, 100, 20]]
+    """
+    b = np.asarray(boxes).reshape(-1, 4)
     out = b.copy()
     out[:, 0], out[:, 2] = width - b[:, 2], width - b[:, 0]
     return out
