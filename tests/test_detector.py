@@ -507,3 +507,23 @@ def test_a_model_saved_for_left_hand_traffic_loads_for_it(tmp_path, default_mode
     default_model.replace(detector_config=default_model.detector_config.replace(traffic="left")).save(path)
     assert Detector.load(path).config.traffic == "left"
     assert Detector.load(path, traffic="right").config.traffic == "right"
+
+
+def test_left_hand_traffic_flips_the_scheduled_search_around_the_tracks(test_frames):
+    # Between full searches only the frame's edges, the horizon band and the tracks' surroundings
+    # are searched: in left-hand traffic the tracks' boxes are flipped with the picture.
+    import dataclasses
+
+    from vehicle_detection.geometry import mirror_boxes
+
+    right = Detector.load()
+    plan = dataclasses.replace(right.config.plan, full_search_every=3)
+    right = Detector(right.model, right.config.replace(plan=plan))
+    left = Detector(right.model, right.config.replace(traffic="left"))
+    frame = test_frames[0]
+    flipped, width = np.ascontiguousarray(frame[:, ::-1]), frame.shape[1]
+    around = np.array([[1040, 400, 1260, 510]], np.float64)  # a tracked car on the right
+    a = right.windows(frame, around)
+    b = left.windows(flipped, mirror_boxes(around, width))
+    assert 0 < len(a) < len(right.windows(frame))
+    assert sorted(a.xyxy.tolist()) == sorted(mirror_boxes(b.xyxy, width).tolist())
