@@ -326,15 +326,12 @@ class Detector:
             and the windows flipped back, so they lie on the flipped picture's grid, not the
             frame's: :meth:`patches` cuts what the classifier scored.
         """
-        frame = as_rgb_uint8(frame, name="frame")
-        overlays = self._picture(frame)
-        if overlays is None or not overlays.cropped:
-            found = self._search(brighten(frame, self._search_gain(frame)), around)
+        picture, shift = self._searched_picture(as_rgb_uint8(frame, name="frame"))
+        if shift is None:
+            found = self._search(picture, around)
         else:
-            shift = np.array(overlays.area[:2] * 2)
             inside = None if around is None else np.asarray(around, np.float64).reshape(-1, 4) - shift
-            picture = overlays.crop(frame)
-            found = self._search(brighten(picture, self._search_gain(picture)), inside)
+            found = self._search(picture, inside)
             data = {k: v + shift if k == "box" else v for k, v in found.data.items()}
             found = found.replace(xyxy=found.xyxy + shift, data=data)
         if self._mask_sums is None or not len(found):
@@ -350,15 +347,20 @@ class Detector:
         -------
         ndarray of uint8, shape (len(windows), window, window, 3)
         """
-        frame = as_rgb_uint8(frame, name="frame")
-        overlays = self._picture(frame)
-        boxes = np.asarray(windows.xyxy)
-        if overlays is not None and overlays.cropped:
-            frame, boxes = overlays.crop(frame), boxes - np.array(overlays.area[:2] * 2)
-        picture = brighten(frame, self._search_gain(frame))
+        picture, shift = self._searched_picture(as_rgb_uint8(frame, name="frame"))
+        boxes = np.asarray(windows.xyxy) if shift is None else np.asarray(windows.xyxy) - shift
         if self.config.traffic == "left":
             picture, boxes = np.ascontiguousarray(picture[:, ::-1]), mirror_boxes(boxes, picture.shape[1])
         return window_patches(picture, windows.replace(xyxy=boxes), self.model, self.config.plan)
+
+    def _searched_picture(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The picture :meth:`windows` searches in ``frame`` (inside the bars, brightened), and its
+        offset in the frame as ``[x, y, x, y]`` (None: the whole frame)."""
+        overlays = self._picture(frame)
+        if overlays is None or not overlays.cropped:
+            return brighten(frame, self._search_gain(frame)), None
+        picture = overlays.crop(frame)
+        return brighten(picture, self._search_gain(picture)), np.array(overlays.area[:2] * 2)
 
     def _search(self, picture: np.ndarray, around: np.ndarray | None) -> Detections:
         """:func:`~vehicle_detection.search.search` of ``picture``; in left-hand traffic
