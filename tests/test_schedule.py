@@ -26,7 +26,7 @@ def _claimed(windows: Detections, plan: SearchPlan, width: int, around: np.ndarr
     """The windows the docs of SearchPlan promise for a between-frames search, from the boxes alone."""
     x1, y1, x2, y2 = windows.xyxy.T
     edge = (x2 <= plan.edge_width) | (x1 >= width - plan.edge_width)
-    top = min(s.y_start for s in plan.scales)
+    top = min(plan.scales, key=lambda s: (s.scale, s.y_start)).y_start  # the smallest windows' band
     horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
     near = np.zeros(len(windows), bool)
     for bx1, by1, bx2, by2 in around:
@@ -50,6 +50,24 @@ def test_between_frames_search_is_the_claimed_windows_with_the_same_margins(defa
     # thresholded: the hits of the full search among the claimed windows
     hits = search(frame, default_model, plan, around=around)
     assert _key(hits) == _key(full[claimed & (full.score > plan.threshold)])
+
+
+def test_between_frames_search_of_the_default_plan_gives_the_full_search_margins(default_model, test_frames):
+    """Every scale of the embedded plan (the fractional one, those that overhang the frame edges):
+    the windows at the edges and around tracks get the margins the full search gives them."""
+    plan = dataclasses.replace(default_model.detector_config.plan, full_search_every=2)
+    frame = test_frames[2]
+    full = search(frame, default_model, plan, all_windows=True)
+    margins = dict(zip(_key(full), full.score.tolist()))
+    around = np.array([[10.0, 400.0, 250.0, 560.0], [620.0, 410.0, 700.0, 460.0], [1000.0, 380.0, 1275.0, 700.0]])
+    part = search(frame, default_model, plan, all_windows=True, around=around)
+    assert 0 < len(part) < len(full)
+    assert set(part.data["scale_index"].tolist()) == set(range(len(plan.scales)))
+    assert part.score.tolist() == [margins[k] for k in _key(part)]
+    # far cars: the smallest windows near the horizon are searched across the frame, not only at its edges
+    alone = search(frame, default_model, plan, all_windows=True, around=np.zeros((0, 4)))
+    small = alone[alone.data["scale_index"] == 0]
+    assert ((small.xyxy[:, 0] > 400) & (small.xyxy[:, 2] < 880)).any()
 
 
 def test_between_frames_search_without_tracks_or_regions(default_model, test_frames):
@@ -84,11 +102,24 @@ def test_detector_searches_whole_frames_every_n(every):
     frames = [np.full((720, 1280, 3), 1 if i >= 2 else 0, np.uint8) for i in range(9)]
     list(det.track(frames))
     whole = [i for i, a in enumerate(det.asked) if a is None]
-    assert whole == (list(range(9)) if every == 1 else [0, 3, 6])
+    # the first min_hits (3) frames are searched whole too: a car seen from the start is confirmed there
+    assert whole == (list(range(9)) if every == 1 else [0, 1, 2, 3, 6])
     if every == 3:
-        # between full searches: the live tracks' boxes when the frame was submitted
-        assert all(len(a) == 0 for a in det.asked[1:3])
+        # between full searches: the live tracks' boxes when the frame was submitted (the tracker
+        # stands behind the search: at frame 4 it has seen frames 0 and 1, without the car)
+        assert len(det.asked[4]) == 0
         assert all(len(a) == 1 for i, a in enumerate(det.asked) if a is not None and i >= 7)
+
+
+def test_a_new_shot_starts_with_whole_frames():
+    """After a cut, the shot's first min_hits frames are searched whole, wherever the schedule stands."""
+    det = _Spy(dataclasses.replace(PLAN, full_search_every=3))
+    first, second = np.zeros((2, 720, 1280, 3), np.uint8)
+    first[:, :640], second[360:] = 200, 200  # left half bright, then the bottom half: another picture
+    frames = [first] * 7 + [second] * 8  # a cut at frame 7
+    list(det.track(frames))
+    whole = [i for i, a in enumerate(det.asked) if a is None]
+    assert whole == [0, 1, 2, 3, 6, 7, 8, 9, 12]
 
 
 def test_default_schedule_is_every_frame_and_old_plans_load():

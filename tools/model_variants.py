@@ -21,7 +21,10 @@ the embedded model:
 * ``exposure=none`` or ``exposure=on``: dark footage searched as it is, or brightened
   (:mod:`vehicle_detection.exposure`, default settings);
 * ``car_horizon=none`` or ``car_horizon=on``: the horizon from the road's lines only, or also
-  from the cars where the lines give none (:class:`vehicle_detection.horizon.CarHorizon`).
+  from the cars where the lines give none (:class:`vehicle_detection.horizon.CarHorizon`);
+* ``full_search_every=N``, ``edge_width=W``, ``horizon_height=H``, ``track_margin=M``: the search
+  schedule's fields of :class:`vehicle_detection.search.SearchPlan` (N above 1 searches whole
+  frames every N frames and, in between, only the edges, the horizon and around the tracks).
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
@@ -50,6 +53,8 @@ GROUPS = {
     "highway tune": [DEV / "highway_dashcam_tune.json", DEV / "highway_dashcam_tune_extra.json"],
 }
 
+PLAN_FIELDS = {"full_search_every": int, "edge_width": int, "horizon_height": int, "track_margin": float}
+
 
 def model_with(variant: str, folder: Path) -> Path | None:
     """The embedded model saved as ``variant`` says (see the module); None for ``embedded``."""
@@ -74,6 +79,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
         raise SystemExit(f"{variant!r}: {exc}") from None
     if sides and side_fit == "none":
         raise SystemExit(f"{variant!r}: side_fit=none and side_reach/side_prior do not go together")
+    schedule = {name: pairs.pop(name) for name in PLAN_FIELDS if name in pairs}
     switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
     for name, value in switches.items():
         if value not in (None, "none", "on"):
@@ -110,6 +116,13 @@ def model_with(variant: str, folder: Path) -> Path | None:
         if value is not None:
             setting = None if value == "none" else getattr(defaults, name)
             model = model.replace(detector_config=model.detector_config.replace(**{name: setting}))
+    if schedule:
+        plan = model.detector_config.plan
+        try:
+            plan = dataclasses.replace(plan, **{k: PLAN_FIELDS[k](v) for k, v in schedule.items()})
+        except ValueError as exc:
+            raise SystemExit(f"{variant!r}: {exc}") from None
+        model = model.replace(detector_config=model.detector_config.replace(plan=plan))
     model.save(path, overwrite=True)
     return path
 
@@ -135,7 +148,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, full_search_every=N, edge_width=W, horizon_height=H, track_margin=M")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)

@@ -392,10 +392,16 @@ class Detector:
         keep = (xy[:, 2] > xy[:, 0]) & (xy[:, 3] > xy[:, 1])
         return found[keep].replace(xyxy=xy[keep])
 
-    def _scheduled_around(self, tracker: Tracker, frame_index: int) -> np.ndarray | None:
-        """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes."""
+    def _scheduled_around(self, tracker: Tracker, frame_index: int, shot_start: int | None = None) -> np.ndarray | None:
+        """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes.
+
+        The first ``min_hits`` frames of a shot (it starts at ``shot_start``, default the
+        tracker's last cut) are searched whole: a vehicle seen from the shot's start is then
+        confirmed, and reported from its first frame, as with every frame searched whole."""
         every = self.config.plan.full_search_every
-        if every <= 1 or frame_index % every == 0:
+        if shot_start is None:
+            shot_start = tracker.state.cuts[-1] if tracker.state.cuts else 0
+        if every <= 1 or frame_index % every == 0 or frame_index - shot_start < self.config.tracker.min_hits:
             return None
         tracks = tracker.state.tracks
         return np.stack([t.box for t in tracks]) if tracks else np.zeros((0, 4))
@@ -623,6 +629,7 @@ class Detector:
             return frame, index, found, backfill
 
         pending: deque = deque()
+        shot_start = tracker.state.cuts[-1] if tracker.state.cuts else 0  # the tracker's own lags the search
         ahead: deque = deque()  # frames read to measure a new shot, not yet searched
         # copies of the last frames, kept while the shot's horizon is to be measured again
         recent: deque = deque((np.array(f) for f in before) if tracker.state.horizon_retry is not None else (),
@@ -654,7 +661,9 @@ class Detector:
                         recent.append(np.array(frame))
                     else:
                         recent.clear()
-                    around = None if cut else det._scheduled_around(tracker, index)
+                    if cut:
+                        shot_start = index
+                    around = None if cut else det._scheduled_around(tracker, index, shot_start)
                     args = (frame,) if around is None else (frame, around)  # windows(frame) as before when whole
                     pending.append((frame, pool.submit(search, *args), cut, det))
                     if len(pending) > workers:

@@ -165,7 +165,7 @@ class SearchPlan:
         ``full_search_every``-th frame is searched whole; the frames in between only where a
         vehicle can appear or be: windows lying within the ``edge_width`` columns at the left
         or right frame edge (part of them may overhang it), windows lying inside the ``horizon_height`` rows below the top
-        of the bands (the horizon, where distant vehicles are small), and windows overlapping a
+        of the band of the smallest windows (near the horizon, where distant vehicles are small), and windows overlapping a
         live track's box grown by ``track_margin`` times its width and height on each side.
         1 (the default) searches every frame whole. Single images are always searched whole.
     edge_width, horizon_height : int
@@ -939,7 +939,7 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
     y1 = band.y0 + band.rows * ppc * band.sy  # (n_rows,)
     y2 = y1 + side * band.sy
     edge = ((x2 <= plan.edge_width) | (x1 >= work_width - plan.edge_width)) & (plan.edge_width > 0)
-    top = min(s.y_start for s in plan.scales) + plan.y_shift
+    top = min(plan.scales, key=lambda s: (s.scale, s.y_start)).y_start + plan.y_shift  # the smallest windows' band
     horizon = (y1 >= top) & (y2 <= top + plan.horizon_height)
     mask = edge[None, :] | horizon[:, None]
     if len(around):
