@@ -272,7 +272,7 @@ def fit_box_regressor(
     config: FeatureConfig,
     *,
     per_box: int = 24,
-    alpha: float = 1.0,
+    alpha: float = REFINE_ALPHA,
     reference_height: int = 720,
     random_state: int = 0,
     hot_iou: float = 0.5,
@@ -297,7 +297,8 @@ def fit_box_regressor(
     per_box : int
         Windows drawn per labelled box (:func:`jittered_windows`).
     alpha : float
-        Ridge penalty on standardised features.
+        Ridge penalty on standardised features (:data:`REFINE_ALPHA` by default, as
+        :func:`~vehicle_detection.training.with_box_refinement` has it).
     reference_height : int
         Frames are resized to this height first, as the search does.
     random_state : int
