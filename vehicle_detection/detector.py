@@ -629,7 +629,7 @@ class Detector:
             return frame, index, found, backfill
 
         pending: deque = deque()
-        shot_start = tracker.state.cuts[-1] if tracker.state.cuts else 0  # the tracker's own lags the search
+        shot_start = tracker.state.cuts[-1] if tracker.state.cuts else 0  # kept here: the tracker sees cuts later
         ahead: deque = deque()  # frames read to measure a new shot, not yet searched
         # copies of the last frames, kept while the shot's horizon is to be measured again
         recent: deque = deque((np.array(f) for f in before) if tracker.state.horizon_retry is not None else (),
