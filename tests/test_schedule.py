@@ -111,6 +111,17 @@ def test_detector_searches_whole_frames_every_n(every):
         assert all(len(a) == 1 for i, a in enumerate(det.asked) if a is not None and i >= 7)
 
 
+def test_a_range_of_a_video_starts_with_whole_frames():
+    """A run from frame 100 (``--start 100``): its first min_hits frames are searched whole."""
+    from vehicle_detection.tracker import Tracker, TrackerState
+
+    det = _Spy(dataclasses.replace(PLAN, full_search_every=3))
+    frames = [np.full((720, 1280, 3), 1, np.uint8) for _ in range(9)]  # frames 100..108
+    list(det.track(frames, Tracker(det.config.tracker, TrackerState(frame_index=100))))
+    whole = [100 + i for i, a in enumerate(det.asked) if a is None]
+    assert whole == [100, 101, 102, 105, 108]
+
+
 def test_a_new_shot_starts_with_whole_frames():
     """After a cut, the shot's first min_hits frames are searched whole, wherever the schedule stands."""
     det = _Spy(dataclasses.replace(PLAN, full_search_every=3))

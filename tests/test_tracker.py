@@ -371,6 +371,23 @@ def test_cut_forgets_tracks_and_heat_and_ids_go_on():
     assert [t.track_id for t in out] == [before.track_id + 1]
 
 
+def test_shot_start_is_the_last_cut_else_where_the_tracker_started():
+    car = np.array([500, 420, 628, 516])
+    tr = Tracker(TrackerConfig(), TrackerState(frame_index=100))  # a range of a video from frame 100
+    assert tr.shot_start == 100
+    for _ in range(4):
+        update(tr, car_windows(car), np.ones(4), SHAPE)
+    assert tr.shot_start == 100
+    tr.cut()
+    assert tr.shot_start == 104
+    assert Tracker(TrackerConfig(), tr.state).shot_start == 104  # a chunk continued after the cut
+    tr.reset()
+    assert tr.shot_start == 0
+    later = Tracker(TrackerConfig(), TrackerState(frame_index=100))
+    update(later, car_windows(car), np.ones(4), SHAPE)
+    assert Tracker(TrackerConfig(), later.state).shot_start == 0  # continued: its start is before the state
+
+
 def test_state_copy_keeps_the_shot_check_apart():
     state = TrackerState(shot_thumbnail=np.ones((27, 48, 3), np.float32), shot_changes=(1.0, 2.0))
     snap = state.copy()

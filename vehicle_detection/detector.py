@@ -395,12 +395,13 @@ class Detector:
     def _scheduled_around(self, tracker: Tracker, frame_index: int, shot_start: int | None = None) -> np.ndarray | None:
         """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes.
 
-        The first ``min_hits`` frames of a shot (it starts at ``shot_start``, default the
-        tracker's last cut) are searched whole: a vehicle seen from the shot's start is then
-        confirmed, and reported from its first frame, as with every frame searched whole."""
+        The first ``min_hits`` frames of a shot (it starts at ``shot_start``, default
+        :attr:`Tracker.shot_start <vehicle_detection.tracker.Tracker.shot_start>`) are searched
+        whole: a vehicle seen from the shot's start is then confirmed, and reported from its
+        first frame, as with every frame searched whole."""
         every = self.config.plan.full_search_every
         if shot_start is None:
-            shot_start = tracker.state.cuts[-1] if tracker.state.cuts else 0
+            shot_start = tracker.shot_start
         if every <= 1 or frame_index % every == 0 or frame_index - shot_start < self.config.tracker.min_hits:
             return None
         tracks = tracker.state.tracks
@@ -629,7 +630,7 @@ class Detector:
             return frame, index, found, backfill
 
         pending: deque = deque()
-        shot_start = tracker.state.cuts[-1] if tracker.state.cuts else 0  # kept here: the tracker sees cuts later
+        shot_start = tracker.shot_start  # kept here: the tracker sees the cuts only when it reaches them
         ahead: deque = deque()  # frames read to measure a new shot, not yet searched
         # copies of the last frames, kept while the shot's horizon is to be measured again
         recent: deque = deque((np.array(f) for f in before) if tracker.state.horizon_retry is not None else (),

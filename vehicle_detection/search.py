@@ -163,7 +163,8 @@ class SearchPlan:
     full_search_every : int
         Search schedule over video frames (:class:`~vehicle_detection.detector.Detector`): every
         ``full_search_every``-th frame is searched whole, and so are the first ``min_hits``
-        frames of each shot (:class:`~vehicle_detection.tracker.TrackerConfig`); the frames in between only where a
+        frames of a run and of each shot (:class:`~vehicle_detection.tracker.TrackerConfig`,
+        :attr:`~vehicle_detection.tracker.Tracker.shot_start`); the frames in between only where a
         vehicle can appear or be: windows lying within the ``edge_width`` columns at the left
         or right frame edge (part of them may overhang it), windows lying inside the ``horizon_height`` rows below the top
         of the band of the smallest windows (near the horizon, where distant vehicles are small), and windows overlapping a

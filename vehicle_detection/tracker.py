@@ -454,6 +454,8 @@ class Tracker:
         self._config = config
         self._state = TrackerState() if state is None else _check_state(state.copy(), config)
         self._backfill = Detections.empty(tracked=True)
+        # where this tracker starts following the footage (a state of earlier frames: before them)
+        self._start = self._state.frame_index if self._state.frame_shape is None else 0
 
     @property
     def config(self) -> TrackerConfig:
@@ -470,6 +472,14 @@ class Tracker:
         """Forget everything, as if new: no heat, no tracks, ids restart at 0."""
         self._state = TrackerState()
         self._backfill = Detections.empty(tracked=True)
+        self._start = 0
+
+    @property
+    def shot_start(self) -> int:
+        """The index of the current shot's first frame: the last cut (:meth:`cut`), else the
+        frame this tracker started at (:attr:`TrackerState.frame_index` of a state that has seen
+        no frame yet; 0 for a state continued from earlier frames, whose start it does not know)."""
+        return self._state.cuts[-1] if self._state.cuts else self._start
 
     @property
     def tracks(self) -> list[Track]:
