@@ -115,11 +115,16 @@ def test_a_range_of_a_video_starts_with_whole_frames():
     """A run from frame 100 (``--start 100``): its first min_hits frames are searched whole."""
     from vehicle_detection.tracker import Tracker, TrackerState
 
-    det = _Spy(dataclasses.replace(PLAN, full_search_every=3))
     frames = [np.full((720, 1280, 3), 1, np.uint8) for _ in range(9)]  # frames 100..108
-    list(det.track(frames, Tracker(det.config.tracker, TrackerState(frame_index=100))))
-    whole = [100 + i for i, a in enumerate(det.asked) if a is None]
-    assert whole == [100, 101, 102, 105, 108]
+    for chunks in ([9], [1, 8], [2, 1, 6]):  # whole, or in chunks that carry the tracker's state on
+        det = _Spy(dataclasses.replace(PLAN, full_search_every=3))
+        state, at = TrackerState(frame_index=100), 0
+        for n in chunks:
+            tracker = Tracker(det.config.tracker, state)
+            list(det.track(frames[at : at + n], tracker))
+            state, at = tracker.state, at + n
+        whole = [100 + i for i, a in enumerate(det.asked) if a is None]
+        assert whole == [100, 101, 102, 105, 108], chunks
 
 
 def test_a_new_shot_starts_with_whole_frames():

@@ -385,7 +385,9 @@ def test_shot_start_is_the_last_cut_else_where_the_tracker_started():
     assert tr.shot_start == 0
     later = Tracker(TrackerConfig(), TrackerState(frame_index=100))
     update(later, car_windows(car), np.ones(4), SHAPE)
-    assert Tracker(TrackerConfig(), later.state).shot_start == 0  # continued: its start is before the state
+    assert Tracker(TrackerConfig(), later.state).shot_start == 100  # the next chunk knows where the run began
+    with pytest.raises(ValueError, match="shot_start"):
+        Tracker(TrackerConfig(), TrackerState(frame_index=5, shot_start=6))
 
 
 def test_state_copy_keeps_the_shot_check_apart():

@@ -162,7 +162,7 @@ class SearchPlan:
         :func:`~vehicle_detection.horizon.vanishing_row`).
     full_search_every : int
         Search schedule over video frames (:class:`~vehicle_detection.detector.Detector`): every
-        ``full_search_every``-th frame is searched whole, and so are the first ``min_hits``
+        ``full_search_every``-th frame (counted from the video's frame 0) is searched whole, and so are the first ``min_hits``
         frames of a run and of each shot (:class:`~vehicle_detection.tracker.TrackerConfig`,
         :attr:`~vehicle_detection.tracker.Tracker.shot_start`); the frames in between only where a
         vehicle can appear or be: windows lying within the ``edge_width`` columns at the left

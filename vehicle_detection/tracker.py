@@ -314,6 +314,9 @@ class TrackerState:
         The changes of the last frames checked (:func:`~vehicle_detection.shots.next_shot`).
     cuts : tuple of int
         The frames at which the tracker started afresh (:meth:`Tracker.cut`), in order.
+    shot_start : int or None
+        The index of the current shot's first frame: the last cut, else the first frame
+        tracked (a range of a video starts at its first frame); None before the first frame.
     gain : float or None
         What the detector multiplies these frames by for the search (dark footage,
         :mod:`~vehicle_detection.exposure`; 1.0 for daylight); None: not measured yet.
@@ -333,6 +336,7 @@ class TrackerState:
     shot_thumbnail: np.ndarray | None = None
     shot_changes: tuple[float, ...] = ()
     cuts: tuple[int, ...] = ()
+    shot_start: int | None = None
     gain: float | None = None
 
     def copy(self) -> TrackerState:
@@ -352,6 +356,7 @@ class TrackerState:
             shot_thumbnail=None if self.shot_thumbnail is None else self.shot_thumbnail.copy(),
             shot_changes=tuple(self.shot_changes),
             cuts=tuple(self.cuts),
+            shot_start=self.shot_start,
             gain=self.gain,
         )
 
@@ -359,6 +364,8 @@ class TrackerState:
 def _check_state(state: TrackerState, config: TrackerConfig) -> TrackerState:
     if not _is_int(state.next_id) or not _is_int(state.frame_index) or state.next_id < 0 or state.frame_index < 0:
         raise ValueError("state.next_id and state.frame_index must be integers >= 0")
+    if state.shot_start is not None and not (_is_int(state.shot_start) and 0 <= state.shot_start <= state.frame_index):
+        raise ValueError("state.shot_start must be None or an integer from 0 to state.frame_index")
     if (state.integrated is None) != (state.frame_shape is None):
         raise ValueError("state.integrated and state.frame_shape must both be set or both be None")
     if state.frame_shape is not None:
@@ -454,8 +461,6 @@ class Tracker:
         self._config = config
         self._state = TrackerState() if state is None else _check_state(state.copy(), config)
         self._backfill = Detections.empty(tracked=True)
-        # where this tracker starts following the footage (a state of earlier frames: before them)
-        self._start = self._state.frame_index if self._state.frame_shape is None else 0
 
     @property
     def config(self) -> TrackerConfig:
@@ -472,14 +477,13 @@ class Tracker:
         """Forget everything, as if new: no heat, no tracks, ids restart at 0."""
         self._state = TrackerState()
         self._backfill = Detections.empty(tracked=True)
-        self._start = 0
 
     @property
     def shot_start(self) -> int:
-        """The index of the current shot's first frame: the last cut (:meth:`cut`), else the
-        frame this tracker started at (:attr:`TrackerState.frame_index` of a state that has seen
-        no frame yet; 0 for a state continued from earlier frames, whose start it does not know)."""
-        return self._state.cuts[-1] if self._state.cuts else self._start
+        """The index of the current shot's first frame (:attr:`TrackerState.shot_start`; before
+        the first frame, the next frame's)."""
+        st = self._state
+        return st.frame_index if st.shot_start is None else st.shot_start
 
     @property
     def tracks(self) -> list[Track]:
@@ -493,6 +497,7 @@ class Tracker:
         is added to :attr:`TrackerState.cuts`."""
         st = self._state
         st.cuts = (*st.cuts, st.frame_index)
+        st.shot_start = st.frame_index
         if st.integrated is not None:
             st.integrated = np.zeros_like(st.integrated)
         st.tracks = []
@@ -554,6 +559,8 @@ class Tracker:
         kept, next_id = self._associate(cand, peaks)
 
         index = st.frame_index
+        if st.shot_start is None:
+            st.shot_start = index
         st.integrated = integrated
         st.tracks = kept
         st.next_id = next_id
