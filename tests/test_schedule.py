@@ -136,6 +136,11 @@ def test_a_new_shot_starts_with_whole_frames():
     list(det.track(frames))
     whole = [i for i, a in enumerate(det.asked) if a is None]
     assert whole == [0, 1, 2, 3, 6, 7, 8, 9, 12]
+    live = _Spy(dataclasses.replace(PLAN, full_search_every=3))  # live use: a frame at a time
+    tracker = live.new_tracker()
+    for frame in frames:
+        live.step(frame, tracker)
+    assert [i for i, a in enumerate(live.asked) if a is None] == whole
 
 
 def test_default_schedule_is_every_frame_and_old_plans_load():
