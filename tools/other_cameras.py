@@ -35,6 +35,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vehicle_detection.geometry import mirror_boxes
+
 REPO = Path(__file__).resolve().parents[1]
 DEV_SET = REPO / "dev_set"
 
@@ -84,7 +86,7 @@ def _move(box, crop, size, bar=0, top=0, mirror=False):
     sx, sy = size[0] / (x1 - x0), size[1] / (y1 - y0)
     out = [(box[0] - x0) * sx, (box[1] - y0) * sy, (box[2] - x0) * sx, (box[3] - y0) * sy]
     if mirror:
-        out = [size[0] - out[2], out[1], size[0] - out[0], out[3]]
+        out = mirror_boxes(out, size[0])[0].tolist()
     full = (out[2] - out[0]) * (out[3] - out[1])
     clipped = [max(0.0, out[0]), max(0.0, out[1]), min(size[0], out[2]), min(size[1], out[3])]
     inside = max(0.0, clipped[2] - clipped[0]) * max(0.0, clipped[3] - clipped[1])

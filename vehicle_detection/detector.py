@@ -349,9 +349,9 @@ class Detector:
         """
         picture, shift = self._searched_picture(as_rgb_uint8(frame, name="frame"))
         boxes = np.asarray(windows.xyxy) if shift is None else np.asarray(windows.xyxy) - shift
-        if self.config.traffic == "left":
-            picture, boxes = np.ascontiguousarray(picture[:, ::-1]), mirror_boxes(boxes, picture.shape[1])
-        return window_patches(picture, windows.replace(xyxy=boxes), self.model, self.config.plan)
+        if self._left:
+            boxes = mirror_boxes(boxes, picture.shape[1])
+        return window_patches(self._oriented(picture), windows.replace(xyxy=boxes), self.model, self.config.plan)
 
     def _searched_picture(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The picture :meth:`windows` searches in ``frame`` (inside the bars, brightened), and its
@@ -365,13 +365,21 @@ class Detector:
     def _search(self, picture: np.ndarray, around: np.ndarray | None) -> Detections:
         """:func:`~vehicle_detection.search.search` of ``picture``; in left-hand traffic
         (``config.traffic``) of the picture flipped left to right, its windows flipped back."""
-        if self.config.traffic == "right":
+        if not self._left:
             return search(picture, self.model, self.config.plan, around=around)
         width = picture.shape[1]
         flipped = None if around is None else mirror_boxes(np.asarray(around, np.float64).reshape(-1, 4), width)
-        found = search(np.ascontiguousarray(picture[:, ::-1]), self.model, self.config.plan, around=flipped)
+        found = search(self._oriented(picture), self.model, self.config.plan, around=flipped)
         data = {k: mirror_boxes(v, width) if k == "box" else v for k, v in found.data.items()}
         return found.replace(xyxy=mirror_boxes(found.xyxy, width), data=data)
+
+    @property
+    def _left(self) -> bool:
+        return self.config.traffic == "left"
+
+    def _oriented(self, picture: np.ndarray) -> np.ndarray:
+        """``picture`` as the model learned its traffic: flipped left to right in left-hand traffic."""
+        return np.ascontiguousarray(picture[:, ::-1]) if self._left else picture
 
     def _picture(self, frame: np.ndarray) -> Overlays | None:
         """The footage's overlays, else with ``auto_overlays`` the bars of ``frame`` itself, else None."""
@@ -392,16 +400,14 @@ class Detector:
         keep = (xy[:, 2] > xy[:, 0]) & (xy[:, 3] > xy[:, 1])
         return found[keep].replace(xyxy=xy[keep])
 
-    def _scheduled_around(self, tracker: Tracker, frame_index: int, shot_start: int | None = None) -> np.ndarray | None:
+    def _scheduled_around(self, tracker: Tracker, frame_index: int, shot_start: int) -> np.ndarray | None:
         """What :meth:`windows` searches in frame ``frame_index``: None (whole) or the live tracks' boxes.
 
-        The first ``min_hits`` frames of a shot (it starts at ``shot_start``, default
-        :attr:`Tracker.shot_start <vehicle_detection.tracker.Tracker.shot_start>`) are searched
-        whole: a vehicle seen from the shot's start is then confirmed, and reported from its
-        first frame, as with every frame searched whole."""
+        The first ``min_hits`` frames of the shot starting at ``shot_start``
+        (:attr:`Tracker.shot_start <vehicle_detection.tracker.Tracker.shot_start>` where the
+        tracker has reached the frame) are searched whole: a vehicle seen from the shot's start
+        is then confirmed, and reported from its first frame, as with every frame searched whole."""
         every = self.config.plan.full_search_every
-        if shot_start is None:
-            shot_start = tracker.shot_start
         if every <= 1 or frame_index % every == 0 or frame_index - shot_start < self.config.tracker.min_hits:
             return None
         tracks = tracker.state.tracks
@@ -478,7 +484,7 @@ class Detector:
         and the tracker starts afresh there (:meth:`shot_cut`).
         """
         cut = self.shot_cut(frame, tracker)
-        around = None if cut else self._scheduled_around(tracker, tracker.state.frame_index)
+        around = None if cut else self._scheduled_around(tracker, tracker.state.frame_index, tracker.shot_start)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
         return self.track_step(frame.shape, wins, tracker, frame, cut=cut)
 
