@@ -29,6 +29,7 @@ SKIPPED = [
     (r"vehicle-detection detect \S+ .*--scheduler tcp://HOST", "needs the cluster above"),
     (r"git show ", "rebuilding the embedded model: needs the git history, then minutes of mining and training "
                    "(tests/test_mining.py and tests/test_cli.py run both on small inputs)"),
+    (r"vehicle-detection \S+ .*\bmy_(tune|heldout|camera)\b", "your own camera's footage and labelled frames (\"Your own camera\")"),
     (r"vehicle-detection (mine-negatives|train)\b", "rebuilding the embedded model: minutes of mining and training"),
     (r"jupyter lab\b", "an interactive server"),
     (r"python tools/regenerate\.py", "re-runs the notebooks, minutes (tests/test_notebooks.py executes them)"),
