@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies import box_sets
 
-from vehicle_detection.geometry import as_boxes, box_iou, match_boxes, mirror_boxes
+from vehicle_detection.geometry import as_boxes, box_iou, match_boxes, mirror_boxes, mirror_image
 
 
 # --------------------------------------------------------------------------------------------
@@ -144,3 +144,15 @@ def test_mirror_boxes_flips_left_to_right_keeps_the_dtype_and_is_its_own_inverse
     x1, y1, x2, y2 = out[0]
     assert np.array_equal(frame[:, ::-1], np.pad(np.ones((y2 - y1, x2 - x1), bool), ((y1, 50 - y2), (x1, 100 - x2))))
     assert mirror_boxes(np.zeros((0, 4)), 100).shape == (0, 4)
+
+
+def test_mirror_image_holds_each_box_s_pixels_in_its_mirror_box():
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (30, 50, 3), dtype=np.uint8)
+    before = image.copy()
+    flipped = mirror_image(image)
+    assert flipped.flags.c_contiguous and np.array_equal(image, before)  # a copy; the input untouched
+    x1, y1, x2, y2 = 3, 4, 20, 25
+    m1, _, m2, _ = mirror_boxes([x1, y1, x2, y2], 50)[0]
+    assert np.array_equal(flipped[y1:y2, m1:m2], image[y1:y2, x1:x2][:, ::-1])
+    assert np.array_equal(mirror_image(flipped), image)

@@ -33,7 +33,7 @@ from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
 from .exposure import brighten, exposure_gain, picture_level
-from .geometry import inset_boxes, mirror_boxes
+from .geometry import inset_boxes, mirror_boxes, mirror_image
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
 from .horizon import TOLERANCE, estimate_horizon, horizon_from_cars
 from .io.images import as_image, as_rgb_uint8
@@ -379,7 +379,7 @@ class Detector:
 
     def _oriented(self, picture: np.ndarray) -> np.ndarray:
         """``picture`` as the model learned its traffic: flipped left to right in left-hand traffic."""
-        return np.ascontiguousarray(picture[:, ::-1]) if self._left else picture
+        return mirror_image(picture) if self._left else picture
 
     def _picture(self, frame: np.ndarray) -> Overlays | None:
         """The footage's overlays, else with ``auto_overlays`` the bars of ``frame`` itself, else None."""

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "inset_boxes", "match_boxes", "mirror_boxes"]
+__all__ = ["MAX_COORD", "as_boxes", "box_area", "box_intersection", "box_iou", "inset_boxes", "match_boxes", "mirror_boxes", "mirror_image"]
 
 #: Coordinates beyond this are certainly errors (and would not fit 32-bit drawing code).
 MAX_COORD = 2**31 - 1
@@ -129,6 +129,12 @@ def mirror_boxes(boxes: ArrayLike, width: int) -> np.ndarray:
     out = b.copy()
     out[:, 0], out[:, 2] = width - b[:, 2], width - b[:, 0]
     return out
+
+
+def mirror_image(image: np.ndarray) -> np.ndarray:
+    """``image`` (H, W, ...) flipped left to right, as a C-contiguous copy (the compiled kernels'
+    layout): the picture :func:`mirror_boxes` maps boxes into."""
+    return np.ascontiguousarray(image[:, ::-1])
 
 
 def box_area(boxes: np.ndarray) -> np.ndarray:

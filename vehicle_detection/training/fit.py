@@ -23,6 +23,7 @@ from sklearn.model_selection import GroupShuffleSplit, train_test_split
 from ..classifier import DEFAULT_C, VehicleClassifier
 from ..errors import InputError
 from ..features import FeatureConfig, extract_features
+from ..geometry import mirror_image
 from ..refine import REFINE_ALPHA, fit_box_regressor
 from .augment import AugmentConfig, augment as augment_patches
 from .data import Dataset, check_split_sizes
@@ -190,7 +191,7 @@ def _searched_frames(model: VehicleClassifier, annotations, flip: bool = False) 
         source = ann.source
         if source is not None and source.is_file():
             with closing(read_frames(source)) as frames:
-                pictures = (np.ascontiguousarray(f[:, ::-1]) for f in frames) if flip else frames
+                pictures = map(mirror_image, frames) if flip else frames
                 detector, _ = detector.for_footage(pictures, detector.new_tracker())
         for _, frame, labels in labelled_frames(ann, flip=flip):
             yield frame, labels.cars, detector.windows(frame).xyxy if len(labels.cars) else np.zeros((0, 4), np.int64)

@@ -54,7 +54,7 @@ from ..detections import Detections
 from ..deprecation import old_keywords
 from ..detector import Detector
 from ..errors import InputError, OutputError
-from ..geometry import box_area, box_intersection, box_iou, match_boxes, mirror_boxes
+from ..geometry import box_area, box_intersection, box_iou, match_boxes, mirror_boxes, mirror_image
 from ..io import PARTIAL_SUFFIX, refuse_inputs, umask
 from ..io.images import list_images, read_image
 from ..io.video import probe_video, read_frames
@@ -300,7 +300,7 @@ def labelled_frames(annotations: Annotations, source: str | os.PathLike | None =
             frame, labels = load(), annotations.frames[index]
             if flip:
                 width = frame.shape[1]
-                frame = np.ascontiguousarray(frame[:, ::-1])
+                frame = mirror_image(frame)
                 labels = dataclasses.replace(labels, cars=mirror_boxes(labels.cars, width), ignore=mirror_boxes(labels.ignore, width))
             yield index, frame, labels
         if index >= last:
