@@ -22,6 +22,7 @@ the embedded model:
   (:mod:`vehicle_detection.exposure`, default settings);
 * ``car_horizon=none`` or ``car_horizon=on``: the horizon from the road's lines only, or also
   from the cars where the lines give none (:class:`vehicle_detection.horizon.CarHorizon`);
+  ``car_margin=M``: the smallest margin of a window that counts there (its ``min_margin``);
 * ``full_search_every=N``, ``edge_width=W``, ``horizon_height=H``, ``track_margin=M``: the search
   schedule's fields of :class:`vehicle_detection.search.SearchPlan` (N above 1 searches whole
   frames every N frames and, in between, only the edges, the horizon and around the tracks).
@@ -81,6 +82,10 @@ def model_with(variant: str, folder: Path) -> Path | None:
         raise SystemExit(f"{variant!r}: side_fit=none and side_reach/side_prior do not go together")
     schedule = {name: pairs.pop(name) for name in PLAN_FIELDS if name in pairs}
     switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
+    try:
+        car_margin = float(pairs.pop("car_margin")) if "car_margin" in pairs else None
+    except ValueError as exc:
+        raise SystemExit(f"{variant!r}: {exc}") from None
     for name, value in switches.items():
         if value not in (None, "none", "on"):
             raise SystemExit(f"{variant!r}: {name} takes 'none' or 'on'")
@@ -116,6 +121,15 @@ def model_with(variant: str, folder: Path) -> Path | None:
         if value is not None:
             setting = None if value == "none" else getattr(defaults, name)
             model = model.replace(detector_config=model.detector_config.replace(**{name: setting}))
+    if car_margin is not None:
+        rule = model.detector_config.car_horizon
+        if rule is None:
+            raise SystemExit(f"{variant!r}: car_margin needs the horizon from the cars (car_horizon=on)")
+        try:
+            rule = dataclasses.replace(rule, min_margin=car_margin)
+        except ValueError as exc:
+            raise SystemExit(f"{variant!r}: {exc}") from None
+        model = model.replace(detector_config=model.detector_config.replace(car_horizon=rule))
     if schedule:
         plan = model.detector_config.plan
         try:
@@ -148,7 +162,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, full_search_every=N, edge_width=W, horizon_height=H, track_margin=M")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, car_margin=M, full_search_every=N, edge_width=W, horizon_height=H, track_margin=M")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
