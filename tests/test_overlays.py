@@ -241,36 +241,34 @@ def test_the_windscreen_mount_of_the_highway_clip_is_masked():
 
 def mount_detector(frames):
     """A detector whose classifier takes the windscreen mount for a car: a linear SVM fitted on the
-    embedded model's features, with squares around the mount as positives and squares of the same
-    sizes (from the same range) elsewhere in the same frames as negatives. It fires there whatever the embedded model
-    learned, so the test below tests the mask, not one model's margins on the mount."""
+    embedded model's features, with squares around the mount as positives and squares of sizes in
+    the same range elsewhere in the same frames as negatives. It fires there whatever the embedded
+    model learned, so the test below tests the mask, not one model's margins on the mount."""
     from vehicle_detection.classifier import VehicleClassifier
     from vehicle_detection.detector import Detector
     from vehicle_detection.features import extract_features
+    from vehicle_detection.geometry import box_intersection
+    from vehicle_detection.refine import crop_windows
 
     embedded = Detector().model
     rng = np.random.default_rng(0)
     x1, y1, x2, y2 = MOUNT
-    cx, cy = (x1 + x2) // 2, (y1 + y2) // 2
+    near_mount = np.array([[x1 - 20, y1 - 20, x2 + 20, y2 + 20]])
     patches, labels = [], []
     for frame in frames:
         h, w = frame.shape[:2]
-        for _ in range(8):
-            side = int(rng.integers(40, 90))
-            jx, jy = rng.integers(-8, 9, size=2)
-            ax, ay = np.clip([cx + jx - side // 2, cy + jy - side // 2], 0, [w - side, h - side])
-            patches.append(cv2.resize(frame[ay:ay + side, ax:ax + side], (64, 64)))
-            labels.append(1)
-        for _ in range(24):
-            side = int(rng.integers(40, 90))
-            while True:
-                bx, by = int(rng.integers(0, w - side)), int(rng.integers(h // 3, h - side))
-                if bx + side < x1 - 20 or bx > x2 + 20 or by + side < y1 - 20 or by > y2 + 20:
-                    break
-            patches.append(cv2.resize(frame[by:by + side, bx:bx + side], (64, 64)))
-            labels.append(0)
-    features = extract_features(np.stack(patches), embedded.config)
-    model = VehicleClassifier.fit(features, np.array(labels), embedded.config, detector_config=embedded.detector_config)
+        side = rng.integers(40, 90, 8)
+        centre = np.array([(x1 + x2) // 2, (y1 + y2) // 2]) + rng.integers(-8, 9, (8, 2))
+        corner = np.clip(centre - side[:, None] // 2, 0, np.stack([w - side, h - side], axis=1))
+        on = np.column_stack([corner, corner + side[:, None]])
+        side = rng.integers(40, 90, 200)
+        corner = np.column_stack([rng.integers(0, w - side), rng.integers(h // 3, h - side)])
+        off = np.column_stack([corner, corner + side[:, None]])
+        off = off[box_intersection(off, near_mount)[:, 0] == 0][:24]
+        patches += [crop_windows(frame, on, embedded.config.window), crop_windows(frame, off, embedded.config.window)]
+        labels += [np.ones(len(on), int), np.zeros(len(off), int)]
+    features = extract_features(np.concatenate(patches), embedded.config)
+    model = VehicleClassifier.fit(features, np.concatenate(labels), embedded.config, detector_config=embedded.detector_config)
     return Detector(model)
 
 
