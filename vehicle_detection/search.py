@@ -356,18 +356,25 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
     return _Band(np.ascontiguousarray(scaled), x0, y0, (x1 - x0) / nw, (y1 - y0) / nh, rows, cols)
 
 
-def _band_windows(band: _Band, config: FeatureConfig, f: float) -> np.ndarray:
-    """The band's windows in the input frame's pixels, float64 (n, 4), not clipped."""
+def _band_windows(band: _Band, config: FeatureConfig, f: float, keep=slice(None)) -> np.ndarray:
+    """The band's windows in the input frame's pixels, float64 (n, 4), not clipped.
+
+    ``keep`` selects windows in the band's row-major order (a boolean mask or indices): only
+    those are computed (a frame keeps a few dozen of its thousands).
+    """
     ppc, side = config.pixels_per_cell, config.window
-    yy, xx = np.meshgrid(band.rows * ppc, band.cols * ppc, indexing="ij")
-    x1 = band.x0 + xx.ravel() * band.sx
-    y1 = band.y0 + yy.ravel() * band.sy
+    index = np.arange(len(band.rows) * len(band.cols))[keep]
+    xx = band.cols[index % len(band.cols)] * ppc
+    yy = band.rows[index // len(band.cols)] * ppc
+    x1 = band.x0 + xx * band.sx
+    y1 = band.y0 + yy * band.sy
     return np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f
 
 
-def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...]) -> np.ndarray:
-    """The band's windows in the input frame's pixels, clipped to the frame."""
-    boxes = np.rint(_band_windows(band, config, f)).astype(np.int64)
+def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...], keep=slice(None)) -> np.ndarray:
+    """The band's windows in the input frame's pixels, clipped to the frame (``keep``: as
+    :func:`_band_windows`)."""
+    boxes = np.rint(_band_windows(band, config, f, keep)).astype(np.int64)
     h, w = frame_shape[:2]
     return np.clip(boxes, 0, [w, h, w, h])
 
@@ -1037,26 +1044,31 @@ def search(
     above = plan.threshold if refine else None
     cascade = None if all_windows or plan.coarse_margin is None else (plan.threshold, plan.coarse_margin)
     border = plan.window_border == "frame"
-    parts, windows, products = [], [], []
+    boxes, scores, scales, windows, products = [], [], [], [], []
     for k, s in enumerate(plan.scales):
         band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
         if band is None:
             continue
         if around is None:
-            scores, found = _score_band(band, model, refine_above=above, cascade=cascade, frame=border)
-            keep = slice(None) if all_windows else scores > plan.threshold
+            margins, found = _score_band(band, model, refine_above=above, cascade=cascade, frame=border)
+            keep = slice(None) if all_windows else margins > plan.threshold
         else:
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
-            scores, found = _score_band_where(band, model, mask, refine_above=above, cascade=cascade, frame=border)
-            keep = mask.ravel() if all_windows else mask.ravel() & (scores > plan.threshold)
-        parts.append(_windows(_band_boxes(band, cfg, f, frame.shape)[keep], scores[keep], k))
+            margins, found = _score_band_where(band, model, mask, refine_above=above, cascade=cascade, frame=border)
+            keep = mask.ravel() if all_windows else mask.ravel() & (margins > plan.threshold)
+        boxes.append(_band_boxes(band, cfg, f, frame.shape, keep))
+        scores.append(margins[keep])
+        scales.append(np.full(len(scores[-1]), k, np.int64))
         if refine:
-            windows.append(_band_windows(band, cfg, f)[keep])
+            windows.append(_band_windows(band, cfg, f, keep))
             products.append(found[keep])
-    found = Detections.concatenate(parts) if parts else _windows(np.zeros((0, 4), np.int64), np.zeros(0), 0)
+    if not boxes:  # no band fits the frame
+        boxes, scores, scales = [np.zeros((0, 4), np.int64)], [np.zeros(0)], [np.zeros(0, np.int64)]
+    data = {"scale_index": np.concatenate(scales)}
     if refine:
-        boxes = np.zeros((0, 4), np.int64)
-        if len(found):
-            boxes = model.box_regressor.refine_products(np.concatenate(windows), np.concatenate(products), frame.shape)
-        found = found.replace(data={**found.data, "box": boxes})
-    return found
+        refined = np.zeros((0, 4), np.int64)
+        if len(data["scale_index"]):
+            refined = model.box_regressor.refine_products(np.concatenate(windows), np.concatenate(products), frame.shape)
+        data["box"] = refined
+    # one Detections for the frame (its checks once, not once per scale)
+    return Detections(np.concatenate(boxes), score=np.concatenate(scores), data=data)
