@@ -21,7 +21,7 @@ def test_without_restores_the_kernels_and_zeroes_outputs():
         search._score_blocks(1, 2, out)
         assert not out.any()
         bin_means, cell_scores = np.full(4, np.nan), np.full(2, np.nan)
-        search._colour_sums(1, 2, 3, 4, np.ones(2, np.int64), bin_means, cell_scores)  # two outputs
+        search._colour_sums(1, 2, 3, 4, bin_means, cell_scores)  # two outputs
         assert not bin_means.any() and not cell_scores.any()
     assert (search._region_cells, search._score_blocks, search._block_map, search._colour_sums, search._score_colour) == before
 

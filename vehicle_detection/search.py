@@ -574,29 +574,29 @@ def _score_blocks(blocks, weights, rows, cols, out):
 
 
 @njit(nogil=True)
-def _colour_sums(conv, f, ppc, hist_lut, sums, bin_means, cell_scores):
+def _colour_sums(conv, f, ppc, hist_lut, bin_means, cell_scores):
     """One pass over the region for the colour features.
 
     bin_means (h // f, w // f, 3) float32: mean of each channel over each ``f x f`` block (the
     spatial bins of any window aligned to the ``f`` grid, as :func:`bin_spatial` computes
-    them); cell_scores (h // ppc, w // ppc): sum over each cell's pixels of
-    ``hist_lut[ch, value]``, the histogram weight of the pixel's bin (a window's histogram
-    score is the sum over its cells). sums (w // f * 3,) int64: a work array (passed in: a
-    kernel without allocations compiles faster). Outputs last, as in every kernel here.
+    them), each block summed in registers; cell_scores (h // ppc, w // ppc): sum over each
+    cell's pixels of ``hist_lut[ch, value]``, the histogram weight of the pixel's bin (a
+    window's histogram score is the sum over its cells). Outputs last, as in every kernel here.
     """
     nby, nbx = bin_means.shape[0], bin_means.shape[1]
     inv = 1.0 / (f * f)
     for by in range(nby):
-        sums[:] = 0
-        for y in range(by * f, (by + 1) * f):
-            for x in range(nbx * f):
-                k = (x // f) * 3
-                sums[k] += conv[y, x, 0]
-                sums[k + 1] += conv[y, x, 1]
-                sums[k + 2] += conv[y, x, 2]
         for bx in range(nbx):
-            for ch in range(3):
-                bin_means[by, bx, ch] = np.float32(sums[bx * 3 + ch] * inv)
+            s0 = s1 = s2 = np.int64(0)  # not a Python 0: plain Python (no JIT) would add in uint8
+            for y in range(by * f, (by + 1) * f):
+                row = conv[y]
+                for x in range(bx * f, (bx + 1) * f):
+                    s0 += row[x, 0]
+                    s1 += row[x, 1]
+                    s2 += row[x, 2]
+            bin_means[by, bx, 0] = np.float32(s0 * inv)
+            bin_means[by, bx, 1] = np.float32(s1 * inv)
+            bin_means[by, bx, 2] = np.float32(s2 * inv)
     for cy in range(cell_scores.shape[0]):
         for cx in range(cell_scores.shape[1]):
             s = 0.0
@@ -849,7 +849,7 @@ def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bo
     cell_scores = None
     if cfg.spatial_size or cfg.hist_bins:
         cell_scores = buffer("cell_scores", (n_cr, n_cc))
-        _colour_sums(conv, f, ppc, folded.hist_lut, np.empty(bin_means.shape[1] * 3, np.int64), bin_means, cell_scores)
+        _colour_sums(conv, f, ppc, folded.hist_lut, bin_means, cell_scores)
     return _BandFeatures(conv, variants, squares, blocks, bin_means, cell_scores, f)
 
 
