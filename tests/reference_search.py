@@ -19,9 +19,14 @@ from vehicle_detection.classifier import VehicleClassifier
 from vehicle_detection.detections import Detections
 from vehicle_detection.features import _orientation_lut, convert_color, extract_features, hog_input
 from vehicle_detection.io.images import as_rgb_uint8
-from vehicle_detection.search import SearchPlan, _band, _band_boxes, _windows, _working_frame
+from vehicle_detection.search import SearchPlan, _band, _band_boxes, _working_frame
 
 __all__ = ["slide_window", "classify_windows", "search_plain"]
+
+
+def _windows(boxes: np.ndarray, scores: np.ndarray, scale_index: int) -> Detections:
+    """One scale's windows as the search reports them (``scale_index`` in ``data``)."""
+    return Detections(boxes, score=scores, data={"scale_index": np.full(len(scores), scale_index, np.int64)})
 
 
 def slide_window(image_shape, x_start_stop=(None, None), y_start_stop=(None, None), xy_window=(64, 64), xy_overlap=(0.5, 0.5)):

@@ -603,6 +603,34 @@ def _blocks_from_variants(variants, cfg, r0, c0, border):
     return np.concatenate(out)
 
 
+@pytest.mark.parametrize("ppc, orientations, signed", [(8, 16, True), (7, 9, False), (5, 12, True), (6, 9, True)])
+def test_region_cells_count_every_pixel_of_a_cell_once(ppc, orientations, signed):
+    """The search's cell kernel (even and odd columns in two accumulators) against a plain count:
+    every pixel's magnitude in its cell's bin, for cells of an odd number of pixels too, with
+    columns and rows left over beyond the last whole cell."""
+    from vehicle_detection.features import _cell_work, _flat_lut, _region_cells
+
+    rng = np.random.default_rng(ppc)
+    planes = rng.integers(0, 256, (3, 9 * ppc + 3, 23 * ppc + 2), np.uint8)
+    planes[1] = cv2.GaussianBlur(planes[1], (0, 0), 2.0)  # smooth: neighbours vote into one bin
+    n_cr, n_cc = planes.shape[1] // ppc, planes.shape[2] // ppc
+    lut = _flat_lut(orientations, signed)
+    cells = np.full((3, n_cr, n_cc, orientations), np.nan, np.float32)
+    _region_cells(planes, lut, ppc, orientations, *_cell_work(n_cc, ppc, orientations), cells)
+
+    p = planes.astype(np.int64)
+    gy, gx = np.zeros_like(p), np.zeros_like(p)
+    gy[:, 1:-1] = p[:, 2:] - p[:, :-2]  # central differences, zero on the region's border
+    gx[:, :, 1:-1] = p[:, :, 2:] - p[:, :, :-2]
+    magnitude = np.sqrt((gx * gx + gy * gy).astype(np.float32)).astype(np.float64)
+    bins = lut[(gy + 255) * 511 + gx + 255]
+    want = np.zeros((3, n_cr, n_cc, orientations + 1))
+    k, y, x = np.indices(p.shape)
+    inside = (y < n_cr * ppc) & (x < n_cc * ppc)
+    np.add.at(want, (k[inside], y[inside] // ppc, x[inside] // ppc, bins[inside]), magnitude[inside])
+    np.testing.assert_allclose(cells, want[..., :orientations], rtol=1e-5, atol=1e-3)
+
+
 @pytest.mark.parametrize("cfg", [FeatureConfig(), CONFIGS[2], CONFIGS[3]], ids=["default", CONFIG_IDS[2], CONFIG_IDS[3]])
 def test_region_hog_cells_of_a_patch_give_its_hog(cfg):
     patch = _patches(1, seed=3)[0]

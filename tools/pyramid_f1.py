@@ -86,7 +86,7 @@ def pyramid_search(shift: dict, control: bool):
             score = model.decision_function(feats) + (0.0 if control else shift[s.scale])
             hot = score > plan.threshold
             band = S._band(work, s, model.config, plan.overhang_of(s), plan.y_shift)
-            windows = S._band_windows(band, model.config, f)[hot]
+            windows = S._band_windows(band, model.config, f, hot)
             boxes = model.box_regressor.refine(windows, feats[hot], frame.shape) if hot.any() else np.zeros((0, 4), np.int64)
             mine = every[where[hot]].replace(score=score[hot])
             parts.append(mine.replace(data={**mine.data, "box": boxes}))

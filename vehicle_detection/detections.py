@@ -149,8 +149,8 @@ class Detections:
             return parts[0]
         if not parts:
             return cls.empty()
-        # Columns that every part with rows has; with no rows at all, that every part has (the
-        # windows of a frame without any keep their scale_index column).
+        # Columns that every part with rows has; with no rows at all, that every part has (parts
+        # without rows then keep their columns, e.g. a search's scale_index).
         rows = [p for p in parts if len(p)] or parts
         keys = set.intersection(*(set(p.data) for p in rows))
         return cls(

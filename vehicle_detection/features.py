@@ -833,7 +833,7 @@ def _region_cells(planes, lut, ppc, nb, acc, rows, mag, cells):
     the fastest cache; bin ``nb`` collects the votes counted in no bin, without a branch. A
     cell's even and odd columns vote into two accumulators, added at the end: neighbouring
     pixels often vote into the same bin, and one accumulator would make each vote wait for the
-    one before (about a third of the kernel's time). ``lut`` is :func:`_orientation_lut`
+    one before. ``lut`` is :func:`_orientation_lut`
     flattened: the bin of ``(gy, gx)`` at ``(gy + 255) * 511 + gx + 255``. Work arrays
     (:func:`_cell_work`, contents irrelevant): acc (2, W // ppc, nb + 1) float32, rows
     (3, W // ppc * ppc) int32, mag (W // ppc * ppc,) float32, passed in rather than allocated

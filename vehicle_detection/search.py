@@ -311,10 +311,6 @@ class _Band:
     cols: np.ndarray
 
 
-def _windows(boxes: np.ndarray, scores: np.ndarray, scale_index: int) -> Detections:
-    return Detections(boxes, score=scores, data={"scale_index": np.full(len(scores), scale_index, np.int64)})
-
-
 def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, float]:
     h, w = frame.shape[:2]
     check_frame_shape(h, w, "frame", reference_height=plan.reference_height)
@@ -356,7 +352,7 @@ def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: fl
     return _Band(np.ascontiguousarray(scaled), x0, y0, (x1 - x0) / nw, (y1 - y0) / nh, rows, cols)
 
 
-def _band_windows(band: _Band, config: FeatureConfig, f: float, keep=slice(None)) -> np.ndarray:
+def _band_windows(band: _Band, config: FeatureConfig, f: float, keep: slice | np.ndarray = slice(None)) -> np.ndarray:
     """The band's windows in the input frame's pixels, float64 (n, 4), not clipped.
 
     ``keep`` selects windows in the band's row-major order (a boolean mask or indices): only
@@ -371,7 +367,8 @@ def _band_windows(band: _Band, config: FeatureConfig, f: float, keep=slice(None)
     return np.stack([x1, y1, x1 + side * band.sx, y1 + side * band.sy], axis=1) / f
 
 
-def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...], keep=slice(None)) -> np.ndarray:
+def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple[int, ...],
+                keep: slice | np.ndarray = slice(None)) -> np.ndarray:
     """The band's windows in the input frame's pixels, clipped to the frame (``keep``: as
     :func:`_band_windows`)."""
     boxes = np.rint(_band_windows(band, config, f, keep)).astype(np.int64)
