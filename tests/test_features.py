@@ -603,15 +603,17 @@ def _blocks_from_variants(variants, cfg, r0, c0, border):
     return np.concatenate(out)
 
 
+@pytest.mark.parametrize("left_over", [(3, 2), (0, 0)], ids=["rows and columns left over", "whole cells"])
 @pytest.mark.parametrize("ppc, orientations, signed", [(8, 16, True), (7, 9, False), (5, 12, True), (6, 9, True)])
-def test_region_cells_count_every_pixel_of_a_cell_once(ppc, orientations, signed):
+def test_region_cells_count_every_pixel_of_a_cell_once(ppc, orientations, signed, left_over):
     """The search's cell kernel (even and odd columns in two accumulators) against a plain count:
     every pixel's magnitude in its cell's bin, for cells of an odd number of pixels too, with
-    columns and rows left over beyond the last whole cell."""
+    rows and columns left over beyond the last whole cell or none (the region's last row and
+    column then lie in a cell, with zero gradient across the border)."""
     from vehicle_detection.features import _cell_work, _flat_lut, _region_cells
 
     rng = np.random.default_rng(ppc)
-    planes = rng.integers(0, 256, (3, 9 * ppc + 3, 23 * ppc + 2), np.uint8)
+    planes = rng.integers(0, 256, (3, 9 * ppc + left_over[0], 23 * ppc + left_over[1]), np.uint8)
     planes[1] = cv2.GaussianBlur(planes[1], (0, 0), 2.0)  # smooth: neighbours vote into one bin
     n_cr, n_cc = planes.shape[1] // ppc, planes.shape[2] // ppc
     lut = _flat_lut(orientations, signed)
