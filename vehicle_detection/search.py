@@ -371,9 +371,13 @@ def _band_boxes(band: _Band, config: FeatureConfig, f: float, frame_shape: tuple
                 keep: slice | np.ndarray = slice(None)) -> np.ndarray:
     """The band's windows in the input frame's pixels, clipped to the frame (``keep``: as
     :func:`_band_windows`)."""
-    boxes = np.rint(_band_windows(band, config, f, keep)).astype(np.int64)
+    return _clipped_boxes(_band_windows(band, config, f, keep), frame_shape)
+
+
+def _clipped_boxes(windows: np.ndarray, frame_shape: tuple[int, ...]) -> np.ndarray:
+    """Windows (float64, :func:`_band_windows`) as whole-pixel boxes clipped to the frame."""
     h, w = frame_shape[:2]
-    return np.clip(boxes, 0, [w, h, w, h])
+    return np.clip(np.rint(windows).astype(np.int64), 0, [w, h, w, h])
 
 
 def _band_patches(band: _Band, config: FeatureConfig, keep: np.ndarray) -> np.ndarray:
@@ -1053,11 +1057,12 @@ def search(
             mask = _scheduled_mask(band, cfg, plan, work.shape[1], around)
             margins, found = _score_band_where(band, model, mask, refine_above=above, cascade=cascade, frame=border)
             keep = mask.ravel() if all_windows else mask.ravel() & (margins > plan.threshold)
-        boxes.append(_band_boxes(band, cfg, f, frame.shape, keep))
+        kept = _band_windows(band, cfg, f, keep)  # once: the boxes, and the refinement's windows
+        boxes.append(_clipped_boxes(kept, frame.shape))
         scores.append(margins[keep])
-        scales.append(np.full(len(scores[-1]), k, np.int64))
+        scales.append(np.full(len(kept), k, np.int64))
         if refine:
-            windows.append(_band_windows(band, cfg, f, keep))
+            windows.append(kept)
             products.append(found[keep])
     if not boxes:  # no band fits the frame
         boxes, scores, scales = [np.zeros((0, 4), np.int64)], [np.zeros(0)], [np.zeros(0, np.int64)]
