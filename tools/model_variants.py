@@ -57,6 +57,23 @@ GROUPS = {
 PLAN_FIELDS = {"full_search_every": int, "edge_width": int, "horizon_height": int, "track_margin": float}
 
 
+def _number(variant: str, value: str, kind=float):
+    """``kind(value)``; a value that is no number ends the run with one line naming the variant."""
+    try:
+        return kind(value)
+    except ValueError as exc:
+        raise SystemExit(f"{variant!r}: {exc}") from None
+
+
+def _replaced(variant: str, settings, **changes):
+    """``dataclasses.replace(settings, **changes)``; a value the settings refuse ends the run
+    with one line naming the variant."""
+    try:
+        return dataclasses.replace(settings, **changes)
+    except (TypeError, ValueError) as exc:
+        raise SystemExit(f"{variant!r}: {exc}") from None
+
+
 def model_with(variant: str, folder: Path) -> Path | None:
     """The embedded model saved as ``variant`` says (see the module); None for ``embedded``."""
     if variant == "embedded":
@@ -74,18 +91,12 @@ def model_with(variant: str, folder: Path) -> Path | None:
     side_fit = pairs.pop("side_fit", None)
     if side_fit not in (None, "none"):
         raise SystemExit(f"{variant!r}: side_fit takes only 'none' (the embedded model fits the sides)")
-    try:
-        sides = {field: float(pairs.pop(f"side_{field}")) for field in ("reach", "prior") if f"side_{field}" in pairs}
-    except ValueError as exc:
-        raise SystemExit(f"{variant!r}: {exc}") from None
+    sides = {field: _number(variant, pairs.pop(f"side_{field}")) for field in ("reach", "prior") if f"side_{field}" in pairs}
     if sides and side_fit == "none":
         raise SystemExit(f"{variant!r}: side_fit=none and side_reach/side_prior do not go together")
     schedule = {name: pairs.pop(name) for name in PLAN_FIELDS if name in pairs}
     switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
-    try:
-        car_margin = float(pairs.pop("car_margin")) if "car_margin" in pairs else None
-    except ValueError as exc:
-        raise SystemExit(f"{variant!r}: {exc}") from None
+    car_margin = _number(variant, pairs.pop("car_margin")) if "car_margin" in pairs else None
     for name, value in switches.items():
         if value not in (None, "none", "on"):
             raise SystemExit(f"{variant!r}: {name} takes 'none' or 'on'")
@@ -94,10 +105,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
     if alpha is not None and not files:
         raise SystemExit(f"{variant!r}: refine_alpha needs refine=LABELS")
     config = model.detector_config
-    try:
-        tracker = dataclasses.replace(config.tracker, **{k: float(v) for k, v in pairs.items()})
-    except (TypeError, ValueError) as exc:
-        raise SystemExit(f"{variant!r}: {exc}") from None
+    tracker = _replaced(variant, config.tracker, **{k: _number(variant, v) for k, v in pairs.items()})
     path = folder / f"model_{len(list(folder.iterdir()))}.npz"
     if files:  # refit by the command line, as a user would (the embedded model's penalty unless told)
         cli("refine", "--labels", *map(str, files), "--out", str(path), *(["--alpha", alpha] if alpha is not None else []))
@@ -111,10 +119,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
     if side_fit == "none":
         model = model.replace(detector_config=model.detector_config.replace(side_fit=None))
     elif sides:
-        try:
-            fit = dataclasses.replace(model.detector_config.side_fit, **sides)
-        except ValueError as exc:
-            raise SystemExit(f"{variant!r}: {exc}") from None
+        fit = _replaced(variant, model.detector_config.side_fit, **sides)
         model = model.replace(detector_config=model.detector_config.replace(side_fit=fit))
     defaults = vd.DetectorConfig()  # shot_cuts=on, exposure=on, car_horizon=on: the default settings
     for name, value in switches.items():
@@ -125,17 +130,10 @@ def model_with(variant: str, folder: Path) -> Path | None:
         rule = model.detector_config.car_horizon
         if rule is None:
             raise SystemExit(f"{variant!r}: car_margin needs the horizon from the cars (car_horizon=on)")
-        try:
-            rule = dataclasses.replace(rule, min_margin=car_margin)
-        except ValueError as exc:
-            raise SystemExit(f"{variant!r}: {exc}") from None
+        rule = _replaced(variant, rule, min_margin=car_margin)
         model = model.replace(detector_config=model.detector_config.replace(car_horizon=rule))
     if schedule:
-        plan = model.detector_config.plan
-        try:
-            plan = dataclasses.replace(plan, **{k: PLAN_FIELDS[k](v) for k, v in schedule.items()})
-        except ValueError as exc:
-            raise SystemExit(f"{variant!r}: {exc}") from None
+        plan = _replaced(variant, model.detector_config.plan, **{k: _number(variant, v, PLAN_FIELDS[k]) for k, v in schedule.items()})
         model = model.replace(detector_config=model.detector_config.replace(plan=plan))
     model.save(path, overwrite=True)
     return path
