@@ -26,7 +26,7 @@ process's threads (less disturbed by other work on the machine than the wall tim
 cost of the pipeline around the search: end to end less detection only. Then end to end once more with a
 :class:`~vehicle_detection.io.Timeline`, printed as a table: milliseconds a frame of each stage
 in each thread (decode, conversion to RGB, search, tracking, drawing, conversion to YUV,
-encoding) and of each thread's waits on its queues. With ``--camera`` (a file from
+encoding) and of each thread's waits on its queues, on the wall clock and in CPU time. With ``--camera`` (a file from
 ``vehicle-detection calibrate``), also end to end with every frame undistorted, and with
 ``--lanes`` too, end to end with undistortion, lane finding and drawing, and distances
 (``process_video(road=Road(camera, lanes=True))``), plus the cost of each step per frame. With

@@ -30,7 +30,8 @@ one core; ``--source`` measures that (the copy without bytecode, none written).
    ``os.wait4``, per child): it should not grow with the video's length;
 5. with ``--timeline``, once more the long clip, through ``process_video`` in this process with
    a :class:`~vehicle_detection.io.Timeline` (no process start, kernels already loaded): where a
-   frame's time goes, stage by stage and thread by thread, as a table;
+   frame's time goes, stage by stage and thread by thread, as a table, on the wall clock and in
+   CPU time (each stage's thread; FFmpeg's and x264's threads, and the cores kept busy);
 6. with ``--kernels``, ``--runs`` times: in a new process on one core with a fresh numba cache,
    numba's own start (a trivial kernel compiled first), then each search kernel's compile time
    as one search of a test image compiles it (numba's compile events), their total and the first

@@ -4,6 +4,7 @@ and a run's outputs the same with and without it (and the same as drawn on copie
 from __future__ import annotations
 
 import threading
+import time
 
 import av
 import numpy as np
@@ -43,9 +44,34 @@ def test_add_lap_and_table():
     ms = timeline.per_frame_ms()
     assert ms["decode"] == pytest.approx(2.0) and ms["encode"] == pytest.approx(1.0)
     table = timeline.table()
-    assert table.splitlines()[0].split() == ["stage", "thread", "ms/frame", "%", "wall"]
+    assert table.splitlines()[0].split() == ["stage", "thread", "ms/frame", "%", "wall", "cpu", "ms"]
     assert "decoder" in table and "mine" in table and "(2 frames, 200.0 fps)" in table
+    assert "process" not in table  # no process CPU time recorded: no lines for it
     assert "Timeline(frames=2" in repr(timeline)
+    with pytest.raises(ValueError, match="'wall' or 'cpu'"):
+        timeline.per_frame_ms("user")
+
+
+def test_cpu_time_is_the_stage_threads_own():
+    # A stage that sleeps takes wall time and almost no CPU time; one that computes takes both.
+    timeline = Timeline()
+    t = timeline.now()
+    time.sleep(0.05)
+    t = timeline.lap("encoder_wait", t)
+    end = time.thread_time() + 0.05
+    while time.thread_time() < end:
+        pass
+    timeline.lap("search", t)
+    assert timeline.seconds("encoder_wait") >= 0.05 and timeline.cpu_seconds("encoder_wait") < 0.02
+    assert timeline.cpu_seconds("search") >= 0.05
+    assert timeline.seconds("search") >= timeline.cpu_seconds("search") - 1e-3  # CPU time never runs ahead of the wall
+    timeline.frames, timeline.wall, timeline.cpu = 1, 0.2, 0.08
+    cpu = timeline.per_frame_ms("cpu")
+    assert set(cpu) == {"search", "encoder_wait"}
+    lines = {line.split()[0]: line.split() for line in timeline.table().splitlines()}
+    assert float(lines["search"][4]) == pytest.approx(cpu["search"], abs=0.01)
+    assert float(lines["other"][2]) == pytest.approx(80.0 - sum(cpu.values()), abs=0.02)  # the codecs' threads, the rest
+    assert float(lines["process"][2]) == pytest.approx(80.0) and "(0.40 cores busy)" in timeline.table()
 
 
 def test_add_from_many_threads():
@@ -127,11 +153,15 @@ def test_process_video_fills_every_stage(runs):
     ms = timeline.per_frame_ms()
     assert all(ms[s] >= 0 for s in expected)
     assert all(timeline.count(s) >= N for s in ("decode", "to_rgb", "search", "track", "draw", "write", "to_yuv", "encode"))
-    assert timeline.count("warmup") == timeline.count("footage") == 1
+    assert timeline.count("footage") == 1 and timeline.count("warmup") == 2  # compile; wait for the loading
     assert ms["search"] > 0 and ms["decode"] > 0 and ms["encode"] > 0
+    cpu = timeline.per_frame_ms("cpu")
+    assert cpu["search"] > 0 and all(cpu[s] >= 0 for s in expected)
+    assert 0 < sum(timeline.cpu_seconds(s) for s in expected) <= timeline.cpu  # the process: every thread
     assert sum(timeline.seconds(s) for s in ("decode", "to_rgb", "decoder_wait")) <= timeline.wall * 1.05
-    for line in timeline.table().splitlines()[1:-1]:
-        assert line.split()[0] in expected
+    lines = timeline.table().splitlines()
+    assert [line.split()[0] for line in lines[1:-3]] == expected
+    assert [line.split()[0] for line in lines[-3:]] == ["other", "process", "wall"]
 
 
 @needs_test_video

@@ -614,14 +614,14 @@ class Detector:
         clock = timing(timeline)
         t = clock.now()
         compile_search_kernels(self.model)  # on a fresh install, on both cores; here, so that Ctrl-C stops it
-        compiled = clock.now()
+        compiled = clock.lap("warmup", t)
         # Loaded while the first frames are read and measured. A daemon thread: a run that fails or
         # is interrupted meanwhile does not wait for it.
         threading.Thread(target=_load_kernels, args=(self.model, self.config.plan), name="kernels", daemon=True).start()
         det, frames = self.for_footage(iter(frames), tracker, workers=workers)  # the search is not running yet
         measured = clock.lap("footage", compiled)
         load_search_kernels(self.model, self.config.plan)  # waits for the thread
-        clock.add("warmup", (compiled - t) + (clock.now() - measured))
+        clock.lap("warmup", measured)
         remeasure = self.config.auto_overlays or self.config.exposure is not None or self.estimates_horizon
         search = clock.timed("search", det.windows)
 

@@ -5,7 +5,14 @@ A :class:`Timeline` is an optional argument of :func:`~vehicle_detection.pipelin
 :class:`~vehicle_detection.io.VideoWriter`, :meth:`~vehicle_detection.detector.Detector.track_frames`).
 Without one, those functions measure nothing: they time their stages on :data:`UNTIMED`, whose
 clock reads 0 and whose laps add nothing (one method call per stage and frame); with one, each
-stage adds the seconds it took, frame by frame, with :func:`time.perf_counter`.
+stage adds the seconds it took, frame by frame, twice: on the wall clock
+(:func:`time.perf_counter`) and in CPU time of its own thread (:func:`time.thread_time`).
+
+On 2 cores the two differ: a stage whose thread waits for a core takes more wall time than
+CPU time, and FFmpeg decodes and x264 encodes in threads of their own, which no stage's thread
+time includes. :func:`~vehicle_detection.pipeline.process_video` also records the process's CPU
+time over the run (:attr:`Timeline.cpu`), and the table gives the rest, CPU time of no stage,
+as its own line.
 
 The stages, in the order of :data:`STAGES`, and the thread each runs in:
 
@@ -16,9 +23,9 @@ stage                   thread       what
 ``to_rgb``              decoder      convert it to RGB (and turn it upright)
 ``decoder_wait``        decoder      wait for room in the queue to the consumer
 ``read_wait``           main         wait for the decoder's next frame
-``warmup``              main         compile the search kernels (a fresh install) and wait
+``warmup``              main         compile the search kernels (a fresh install), then wait
                                      for the thread that loads them while the first
-                                     frames are measured, once a run
+                                     frames are measured: twice a run
 ``footage``             main         measure the first frames (horizon, black bars), once
                                      a run; their ``read_wait`` is part of it, and so is a
                                      wait for the kernels when the horizon is read off
@@ -36,15 +43,16 @@ stage                   thread       what
 ======================  ===========  ======================================================
 
 The waits are the time a thread was blocked on its queue (or future), so a stage that keeps
-the others waiting shows up as their waits.
+the others waiting shows up as their waits (on the wall clock; a wait takes almost no CPU time).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from typing import NamedTuple
 
-__all__ = ["Timeline", "STAGES", "UNTIMED", "timing"]
+__all__ = ["Timeline", "Mark", "STAGES", "UNTIMED", "timing"]
 
 #: Every stage, in pipeline order, with the thread it runs in.
 STAGES: dict[str, str] = {
@@ -67,8 +75,17 @@ STAGES: dict[str, str] = {
 }
 
 
+class Mark(NamedTuple):
+    """A moment on both clocks of a :class:`Timeline`, in seconds: what :meth:`Timeline.now` gives."""
+
+    wall: float  #: :func:`time.perf_counter`
+    cpu: float  #: :func:`time.thread_time`: CPU time of the thread that took the mark
+
+
 class Timeline:
     """Seconds spent in each stage of a video run, added up over its frames, from any thread.
+
+    Each stage has wall seconds and CPU seconds of the thread it ran in.
 
     Attributes
     ----------
@@ -78,6 +95,9 @@ class Timeline:
     wall : float
         Seconds the run took from the first frame decoded to the last one encoded (set by
         :func:`~vehicle_detection.pipeline.process_video`).
+    cpu : float
+        CPU seconds of the whole process over the same run, all threads (FFmpeg's and x264's
+        included; set by :func:`~vehicle_detection.pipeline.process_video`).
 
     Examples
     --------
@@ -89,32 +109,35 @@ class Timeline:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._seconds: dict[str, float] = {}
+        self._cpu: dict[str, float] = {}
         self._counts: dict[str, int] = {}
         self.frames = 0
         self.wall = 0.0
+        self.cpu = 0.0
 
     @staticmethod
-    def now() -> float:
-        """The clock every stage is measured with (:func:`time.perf_counter`)."""
-        return time.perf_counter()
+    def now() -> Mark:
+        """Now on both clocks, for this thread: the start of a stage, to :meth:`lap` on."""
+        return Mark(time.perf_counter(), time.thread_time())
 
-    def add(self, stage: str, seconds: float) -> None:
-        """Add ``seconds`` to ``stage`` (one call per frame, or several)."""
+    def add(self, stage: str, seconds: float, cpu: float = 0.0) -> None:
+        """Add ``seconds`` of wall time and ``cpu`` seconds of CPU time to ``stage`` (one call per frame, or several)."""
         with self._lock:
             self._seconds[stage] = self._seconds.get(stage, 0.0) + seconds
+            self._cpu[stage] = self._cpu.get(stage, 0.0) + cpu
             self._counts[stage] = self._counts.get(stage, 0) + 1
 
-    def lap(self, stage: str, since: float) -> float:
-        """Add the time from ``since`` (:meth:`now`) to now to ``stage``; return now."""
-        now = time.perf_counter()
-        self.add(stage, now - since)
+    def lap(self, stage: str, since: Mark) -> Mark:
+        """Add the time from ``since`` (:meth:`now` or a lap, in this thread) to now to ``stage``; return now."""
+        now = self.now()
+        self.add(stage, now.wall - since.wall, now.cpu - since.cpu)
         return now
 
     def timed(self, stage: str, function):
         """``function``, adding the seconds of each call to ``stage``."""
 
         def timed(*args, **kwargs):
-            t = time.perf_counter()
+            t = self.now()
             try:
                 return function(*args, **kwargs)
             finally:
@@ -123,8 +146,12 @@ class Timeline:
         return timed
 
     def seconds(self, stage: str) -> float:
-        """Seconds spent in ``stage`` in all (0.0 if it never ran)."""
+        """Seconds of wall time spent in ``stage`` in all (0.0 if it never ran)."""
         return self._seconds.get(stage, 0.0)
+
+    def cpu_seconds(self, stage: str) -> float:
+        """CPU seconds the thread of ``stage`` spent in it in all (0.0 if it never ran)."""
+        return self._cpu.get(stage, 0.0)
 
     def count(self, stage: str) -> int:
         """Times ``stage`` was measured."""
@@ -136,25 +163,42 @@ class Timeline:
         known = [s for s in STAGES if s in self._seconds]
         return known + [s for s in self._seconds if s not in STAGES]
 
-    def per_frame_ms(self) -> dict[str, float]:
-        """Milliseconds per frame of each stage measured: its seconds over :attr:`frames`."""
+    def per_frame_ms(self, clock: str = "wall") -> dict[str, float]:
+        """Milliseconds per frame of each stage measured: its seconds over :attr:`frames`.
+
+        ``clock``: ``"wall"`` (the default) or ``"cpu"`` (CPU time of the stage's thread).
+        """
+        if clock not in ("wall", "cpu"):
+            raise ValueError(f"clock must be 'wall' or 'cpu', not {clock!r}")
+        seconds = self._seconds if clock == "wall" else self._cpu
         n = max(self.frames, 1)
-        return {s: 1000.0 * self._seconds[s] / n for s in self.stages}
+        return {s: 1000.0 * seconds[s] / n for s in self.stages}
 
     def table(self) -> str:
-        """The stages as a small text table: thread, ms a frame, share of the wall time."""
+        """The stages as a small text table: thread, wall ms a frame, share of the wall time, CPU ms a frame.
+
+        With the process's CPU time (:attr:`cpu`), two more lines: CPU time that no stage's
+        thread spent (FFmpeg's codec threads, the garbage collector, ...), and the process's.
+        """
         n = max(self.frames, 1)
         wall_ms = 1000.0 * self.wall / n
-        lines = [f"{'stage':<13} {'thread':<8} {'ms/frame':>9} {'% wall':>7}"]
+        cpu = self.per_frame_ms("cpu")
+        lines = [f"{'stage':<13} {'thread':<8} {'ms/frame':>9} {'% wall':>7} {'cpu ms':>7}"]
         for stage, ms in self.per_frame_ms().items():
             share = f"{100.0 * ms / wall_ms:6.0f}%" if wall_ms > 0 else "      -"
-            lines.append(f"{stage:<13} {STAGES.get(stage, '?'):<8} {ms:9.2f} {share}")
+            lines.append(f"{stage:<13} {STAGES.get(stage, '?'):<8} {ms:9.2f} {share} {cpu[stage]:7.2f}")
+        if self.cpu > 0:
+            cpu_ms = 1000.0 * self.cpu / n
+            lines.append(f"{'other':<13} {'codecs':<8} {'':>9} {'':>7} {cpu_ms - sum(cpu.values()):7.2f}"
+                         "   (CPU time of no stage: FFmpeg's and x264's threads, the rest)")
+            busy = f"{self.cpu / self.wall:.2f} cores busy" if self.wall > 0 else "-"
+            lines.append(f"{'process':<13} {'all':<8} {'':>9} {'':>7} {cpu_ms:7.2f}   ({busy})")
         fps = f"{self.frames / self.wall:.1f} fps" if self.wall > 0 else "-"
         lines.append(f"{'wall':<13} {'':<8} {wall_ms:9.2f}    100%   ({self.frames} frames, {fps})")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
-        return f"Timeline(frames={self.frames}, wall={self.wall:.3f}, stages={len(self._seconds)})"
+        return f"Timeline(frames={self.frames}, wall={self.wall:.3f}, cpu={self.cpu:.3f}, stages={len(self._seconds)})"
 
 
 class _Untimed:
@@ -167,10 +211,10 @@ class _Untimed:
     def now() -> float:
         return 0.0
 
-    def add(self, stage: str, seconds: float) -> None:
+    def add(self, stage: str, seconds: float, cpu: float = 0.0) -> None:
         pass
 
-    def lap(self, stage: str, since: float) -> float:
+    def lap(self, stage: str, since) -> float:
         return 0.0
 
     def timed(self, stage: str, function):
