@@ -95,6 +95,32 @@ def test_the_main_half_compiles_the_other_kernels(tmp_path):
     assert compiled == {fn for _, fn, _ in warmup._MAIN_KERNELS + warmup._MAIN_REFINE_KERNELS}
 
 
+def test_a_cache_is_warm_only_with_current_indexes_of_this_install(tmp_path, monkeypatch):
+    # numba's own cache, filled by both halves: warm. The same files written before the sources
+    # (an upgrade since), or in another install's folder, or for another Python: cold.
+    import os
+    import shutil
+    import sys
+
+    _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection import warmup, load_default_model\n"
+                                         "warmup._helper()\nwarmup._compile_main(load_default_model())\n")
+    monkeypatch.setattr(warmup._jit, "CACHE_DIR", tmp_path / "cache")
+    kernels = warmup._all_kernels(refine=True)
+    folder = warmup._cache_folder()
+    assert folder.is_dir() and warmup._cached(kernels)
+    index = next(folder.glob("search._score_blocks-*.nbi"))
+    old = (Path(warmup.__file__).parent / "search.py").stat().st_mtime - 60
+    os.utime(index, (old, old))
+    assert not warmup._cached(kernels)
+    assert warmup._cached(warmup._HELPER_KERNELS)  # the others are current
+    os.utime(index)
+    assert warmup._cached(kernels)
+    index.rename(index.with_name(index.name.replace(".py%d%d" % sys.version_info[:2], ".py27")))
+    assert not warmup._cached(kernels)
+    shutil.move(folder, folder.with_name("vehicle_detection_" + "0" * 40))  # another install's
+    assert not warmup._cached(warmup._HELPER_KERNELS)
+
+
 def test_searching_after_the_warm_up_gives_the_same_windows(default_model, test_frames):
     before = search.search(test_frames[0], default_model)
     warmup._DONE.clear()

@@ -33,6 +33,7 @@ first frames are read and measured.
 from __future__ import annotations
 
 import atexit
+import hashlib
 import importlib
 import os
 import subprocess
@@ -75,15 +76,36 @@ def _module(name: str):
     return importlib.import_module(f"{__package__}.{name}")  # the module, not the package's lazy names
 
 
+def _cache_folder() -> Path:
+    """The folder of the cache where numba keeps this package's kernels.
+
+    numba gives each source folder its own: the folder's name and the SHA-1 of its absolute
+    path (numba's ``_CacheLocator.get_suitable_cache_subpath``). Another install of the package
+    (another venv, another checkout) has its own.
+    """
+    source = os.path.dirname(os.path.abspath(__file__))
+    return Path(_jit.CACHE_DIR) / f"{os.path.basename(source)}_{hashlib.sha1(source.encode()).hexdigest()}"
+
+
 def _cached(kernels) -> bool:
-    """Whether the cache folder holds an index for every one of ``kernels`` (a warm cache)."""
+    """Whether numba's cache holds a current index for every one of ``kernels`` (a warm cache).
+
+    Current: in this very package's folder of the cache (:func:`_cache_folder`), for this
+    Python (numba names each index ``module.kernel-line.py311.nbi``), and written after the
+    kernel's source file. An upgrade writes the sources anew, and numba then compiles every
+    kernel again, so a cache of the version before is cold.
+    """
     if _jit.CACHE_DIR is None:
         return True  # no cache: nothing to share between processes
-    names = set()
-    for root, _, files in os.walk(_jit.CACHE_DIR):
-        names.update(files)
+    tag = ".py%d%d%s.nbi" % (*sys.version_info[:2], getattr(sys, "abiflags", ""))
+    try:
+        written = {e.name: e.stat().st_mtime for e in os.scandir(_cache_folder()) if e.name.endswith(tag)}
+    except OSError:
+        return False  # no folder yet
+    here = Path(__file__).parent
     for _, _, prefix in kernels:
-        if not any(n.startswith(prefix) and n.endswith(".nbi") for n in names):
+        source = (here / f"{prefix.split('.')[0]}.py").stat().st_mtime
+        if not any(name.startswith(prefix) and mtime >= source for name, mtime in written.items()):
             return False
     return True
 
