@@ -89,3 +89,42 @@ def test_install_that_cannot_be_written_runs_help_and_detect(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     assert (out / "test_video_boxes.csv").read_text().count("\n") > 1
     assert {p: p.stat().st_mtime_ns for p in site.rglob("*")} == before  # nothing written, nothing added
+
+
+def test_kernels_run_without_scipy_linalg_and_numba_finds_blas_as_it_would(tmp_path):
+    # The search's kernels are loaded (or compiled) without importing scipy.linalg; numba's BLAS
+    # check says what numba's own import says, and a kernel of the user's that takes BLAS
+    # (np.correlate of floats) still gets it, with NumPy's result.
+    script = (
+        "import sys, threading\n"
+        "import numpy as np\n"
+        "import vehicle_detection as vd\n"
+        "from vehicle_detection import _jit\n"
+        "image = np.zeros((720, 1280, 3), np.uint8)\n"
+        "vd.Detector().detect_image(image)\n"
+        "from numba.np import arraymath\n"
+        "print('scipy.linalg' in sys.modules, arraymath._HAVE_BLAS)\n"
+        "print(any(isinstance(f, _jit._NoLinalg) for f in sys.meta_path))\n"
+        "from numba import njit\n"
+        "got = njit(lambda a, b: np.correlate(a, b))(np.arange(5.0), np.array([1.0, 2.0]))\n"
+        "print(np.array_equal(got, np.correlate(np.arange(5.0), np.array([1.0, 2.0]))), 'scipy.linalg' in sys.modules)\n"
+        "finder, seen = _jit._NoLinalg(), []\n"
+        "other = threading.Thread(target=lambda: seen.append(finder.find_spec('scipy.linalg')))\n"
+        "other.start()\n"
+        "other.join()\n"
+        "try:\n"
+        "    finder.find_spec('scipy.linalg')\n"
+        "except ImportError:\n"
+        "    seen.append('refused here')\n"
+        "print(seen)\n"
+    )
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    numba_own = subprocess.run([sys.executable, "-c", "from numba.np import arraymath; print(arraymath._HAVE_BLAS)"],
+                               capture_output=True, text=True, timeout=120)
+    lines = proc.stdout.split("\n")
+    assert lines[0] == f"False {numba_own.stdout.strip()}"  # no scipy.linalg; numba's own answer
+    assert lines[1] == "False"  # the finder is gone
+    assert lines[2] == "True True"  # the user's BLAS kernel: NumPy's result, scipy.linalg imported for it
+    assert lines[3] == "[None, 'refused here']"  # refused only to the importing thread

@@ -17,13 +17,24 @@ numba checks a cached kernel against its own source file only, not against the f
 kernels it calls (``search._score_hog`` calls ``features._clipped_block``, for one). An install
 or upgrade writes every file anew, so nothing stale is loaded; a developer who edits a kernel in
 one file that another file's kernel calls must clear the cache folder (:data:`CACHE_DIR`).
+
+numba's module of NumPy array functions, which the first kernel compiled or loaded imports,
+checks at import whether SciPy's BLAS is there (for ``np.correlate`` and ``np.convolve``) by
+importing ``scipy.linalg``: 0.2 to 0.3 s of every run's start, in the main process and in the
+helper of :mod:`~vehicle_detection.warmup`, for a check that no kernel here depends on. It is
+imported with the first kernel defined, ``scipy.linalg`` out of its reach while it is (in this
+thread only), and the check's answer is then set as numba would have found it (SciPy installed;
+a kernel that uses BLAS imports ``scipy.linalg`` when it is compiled, as ever).
 """
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import os
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 __all__ = ["CACHE_DIR", "njit"]
@@ -71,6 +82,34 @@ if CACHE_DIR is not None:
     os.environ["NUMBA_CACHE_DIR"] = str(CACHE_DIR)  # numba reads it on import
 
 
+class _NoLinalg(importlib.abc.MetaPathFinder):
+    """Refuses ``scipy.linalg`` to the thread that installed it (:func:`_import_arraymath`)."""
+
+    def __init__(self) -> None:
+        self.thread = threading.get_ident()
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "scipy.linalg" and threading.get_ident() == self.thread:
+            raise ImportError("scipy.linalg: not imported for numba's BLAS check (vehicle_detection._jit)")
+        return None
+
+
+def _import_arraymath() -> None:
+    """Import ``numba.np.arraymath`` without ``scipy.linalg`` (see the module's notes)."""
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return  # done already, or the check is cheap
+    finder = _NoLinalg()
+    sys.meta_path.insert(0, finder)
+    try:
+        from numba.np import arraymath
+    except ImportError:
+        return  # another numba: imported as it comes, by the first kernel
+    finally:
+        sys.meta_path.remove(finder)
+    if hasattr(arraymath, "_HAVE_BLAS"):
+        arraymath._HAVE_BLAS = importlib.util.find_spec("scipy") is not None  # numba's answer, SciPy unimported
+
+
 def njit(**options):
     """``numba.njit`` with ``cache=True`` where a cache folder is writable.
 
@@ -80,6 +119,7 @@ def njit(**options):
     """
     import numba
 
+    _import_arraymath()
     if CACHE_DIR is not None:
         numba.config.CACHE_DIR = str(CACHE_DIR)  # numba may have been imported before us
     return numba.njit(cache=CACHE_DIR is not None, **options)
