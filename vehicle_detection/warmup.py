@@ -88,26 +88,22 @@ def _cache_folder() -> Path:
 
 
 def _cached(kernels) -> bool:
-    """Whether numba's cache holds a current index for every one of ``kernels`` (a warm cache).
+    """Whether numba's cache holds an index for every one of ``kernels`` (a warm cache).
 
-    Current: in this very package's folder of the cache (:func:`_cache_folder`), for this
-    Python (numba names each index ``module.kernel-line.py311.nbi``), and written after the
-    kernel's source file. An upgrade writes the sources anew, and numba then compiles every
-    kernel again, so a cache of the version before is cold.
+    In this very package's folder of the cache (:func:`_cache_folder`), not another install's,
+    and for this Python (numba names each index ``module.kernel-line.py311.nbi``). Whether an
+    index is current is numba's to decide when it loads it (against a hash of the source, in
+    recent versions): after an upgrade the first run may find stale ones and compile here,
+    without the helper, once.
     """
     if _jit.CACHE_DIR is None:
         return True  # no cache: nothing to share between processes
     tag = ".py%d%d%s.nbi" % (*sys.version_info[:2], getattr(sys, "abiflags", ""))
     try:
-        written = {e.name: e.stat().st_mtime for e in os.scandir(_cache_folder()) if e.name.endswith(tag)}
+        names = [e.name for e in os.scandir(_cache_folder()) if e.name.endswith(tag)]
     except OSError:
         return False  # no folder yet
-    here = Path(__file__).parent
-    for _, _, prefix in kernels:
-        source = (here / f"{prefix.split('.')[0]}.py").stat().st_mtime
-        if not any(name.startswith(prefix) and mtime >= source for name, mtime in written.items()):
-            return False
-    return True
+    return all(any(name.startswith(prefix) for name in names) for _, _, prefix in kernels)
 
 
 # Kernels with more than one output (their last arguments); every other kernel's output is its last.
@@ -194,7 +190,9 @@ def _start_process():
     """The helper process, compiling its half into the cache folder; None if it cannot start."""
     env = dict(os.environ)
     env["NUMBA_CACHE_DIR"] = str(_jit.CACHE_DIR)
-    package_parent = str(Path(__file__).resolve().parents[1])  # this very package, not another install
+    # this very package, not another install, by the path numba keys its cache on (not resolved:
+    # through a symlinked folder the helper would compile into another folder of the cache)
+    package_parent = str(Path(os.path.abspath(__file__)).parents[1])
     env["PYTHONPATH"] = os.pathsep.join([package_parent] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     try:
         return subprocess.Popen(
@@ -275,8 +273,8 @@ def load_search_kernels(model, plan=None) -> None:
 
     A blank band is scored with every window counted as hot, by the search's own code path, so
     that the kernels the first frame needs are ready. Loading them from a warm cache also starts
-    numba (its registries, and SciPy's BLAS, which numba imports): about a second of one core,
-    mostly in Python, which :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread
+    numba (its registries; not SciPy's linear algebra, see :mod:`~vehicle_detection._jit`):
+    a third of a second of one core or more, mostly in Python, which :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread
     (after :func:`compile_search_kernels`) while the first frames are read and measured. A call
     while another thread loads them waits for it; later calls for the same kind of search return
     at once. The results never depend on this: a kernel not loaded here is compiled on first use.
