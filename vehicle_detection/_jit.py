@@ -23,8 +23,9 @@ checks at import whether SciPy's BLAS is there (for ``np.correlate`` and ``np.co
 importing ``scipy.linalg``: 0.2 to 0.3 s of every run's start, in the main process and in the
 helper of :mod:`~vehicle_detection.warmup`, for a check that no kernel here depends on. It is
 imported with the first kernel defined, ``scipy.linalg`` out of its reach while it is (in this
-thread only), and the check's answer is then set as numba would have found it (SciPy installed;
-a kernel that uses BLAS imports ``scipy.linalg`` when it is compiled, as ever).
+thread only), and the check's answer is then set from whether SciPy is installed, as the
+package requires it to be (a kernel that uses BLAS imports ``scipy.linalg`` when it is compiled,
+as ever, and fails there if SciPy's BLAS does not suit numba).
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ def _import_arraymath() -> None:
     finally:
         sys.meta_path.remove(finder)
     if hasattr(arraymath, "_HAVE_BLAS"):
-        arraymath._HAVE_BLAS = importlib.util.find_spec("scipy") is not None  # numba's answer, SciPy unimported
+        arraymath._HAVE_BLAS = importlib.util.find_spec("scipy") is not None  # SciPy installed, not imported
 
 
 def njit(**options):

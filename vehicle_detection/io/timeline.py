@@ -11,8 +11,9 @@ stage adds the seconds it took, frame by frame, twice: on the wall clock
 On 2 cores the two differ: a stage whose thread waits for a core takes more wall time than
 CPU time, and FFmpeg decodes and x264 encodes in threads of their own, which no stage's thread
 time includes. :func:`~vehicle_detection.pipeline.process_video` also records the process's CPU
-time over the run (:attr:`Timeline.cpu`), and the table gives the rest, CPU time of no stage,
-as its own line.
+time over the run (:attr:`Timeline.cpu`), and the table gives the rest as its own line: CPU
+time of no stage (FFmpeg's and x264's threads, the garbage collector, the main thread's work
+between stages, a thread loading the kernels; ``footage`` counts its own ``read_wait`` again).
 
 The stages, in the order of :data:`STAGES`, and the thread each runs in:
 
@@ -97,7 +98,8 @@ class Timeline:
         :func:`~vehicle_detection.pipeline.process_video`).
     cpu : float
         CPU seconds of the whole process over the same run, all threads (FFmpeg's and x264's
-        included; set by :func:`~vehicle_detection.pipeline.process_video`).
+        included; set by :func:`~vehicle_detection.pipeline.process_video`). Like ``frames``
+        and ``wall``, those of one run: a timeline is for one run.
 
     Examples
     --------
@@ -189,8 +191,8 @@ class Timeline:
             lines.append(f"{stage:<13} {STAGES.get(stage, '?'):<8} {ms:9.2f} {share} {cpu[stage]:7.2f}")
         if self.cpu > 0:
             cpu_ms = 1000.0 * self.cpu / n
-            lines.append(f"{'other':<13} {'codecs':<8} {'':>9} {'':>7} {cpu_ms - sum(cpu.values()):7.2f}"
-                         "   (CPU time of no stage: FFmpeg's and x264's threads, the rest)")
+            lines.append(f"{'other':<13} {'-':<8} {'':>9} {'':>7} {cpu_ms - sum(cpu.values()):7.2f}"
+                         "   (CPU time of no stage: FFmpeg's and x264's threads, the collector, the rest)")
             busy = f"{self.cpu / self.wall:.2f} cores busy" if self.wall > 0 else "-"
             lines.append(f"{'process':<13} {'all':<8} {'':>9} {'':>7} {cpu_ms:7.2f}   ({busy})")
         fps = f"{self.frames / self.wall:.1f} fps" if self.wall > 0 else "-"
@@ -201,6 +203,9 @@ class Timeline:
         return f"Timeline(frames={self.frames}, wall={self.wall:.3f}, cpu={self.cpu:.3f}, stages={len(self._seconds)})"
 
 
+_ZERO = Mark(0.0, 0.0)  # the time on the clock of a run without a timeline
+
+
 class _Untimed:
     """The clock of a run without a :class:`Timeline`: :meth:`Timeline.now`, :meth:`~Timeline.add`,
     :meth:`~Timeline.lap` and :meth:`~Timeline.timed` that measure nothing, so the stages need no ``None`` checks."""
@@ -208,14 +213,14 @@ class _Untimed:
     __slots__ = ()
 
     @staticmethod
-    def now() -> float:
-        return 0.0
+    def now() -> Mark:
+        return _ZERO
 
     def add(self, stage: str, seconds: float, cpu: float = 0.0) -> None:
         pass
 
-    def lap(self, stage: str, since) -> float:
-        return 0.0
+    def lap(self, stage: str, since: Mark) -> Mark:
+        return _ZERO
 
     def timed(self, stage: str, function):
         return function
