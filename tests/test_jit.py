@@ -128,3 +128,22 @@ def test_kernels_run_without_scipy_linalg_and_numba_finds_blas_as_it_would(tmp_p
     assert lines[1] == "False"  # the finder is gone
     assert lines[2] == "True True"  # the user's BLAS kernel: NumPy's result, scipy.linalg imported for it
     assert lines[3] == "[None, 'refused here']"  # refused only to the importing thread
+
+
+def test_a_numba_that_checks_blas_otherwise_imports_as_it_comes():
+    # The hook is used only where numba's module holds the check it was written for.
+    script = (
+        "import sys\n"
+        "from vehicle_detection import _jit\n"
+        "_jit._BLAS_CHECK = {check!r}\n"
+        "import vehicle_detection.features\n"
+        "from numba.np import arraymath\n"
+        "print('scipy.linalg' in sys.modules, arraymath._HAVE_BLAS)\n"
+    )
+    seen = []
+    for check in ("_HAVE_BLAS = _check_blas()", "_HAVE_BLAS = _another_check()"):
+        proc = subprocess.run([sys.executable, "-c", script.format(check=check)], capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        seen.append(proc.stdout.strip())
+    assert seen == ["False True", "True True"]

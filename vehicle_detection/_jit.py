@@ -95,10 +95,26 @@ class _NoLinalg(importlib.abc.MetaPathFinder):
         return None
 
 
+#: The line of ``numba.np.arraymath`` that imports ``scipy.linalg`` (through ``ensure_blas``).
+_BLAS_CHECK = "_HAVE_BLAS = _check_blas()"
+
+
 def _import_arraymath() -> None:
-    """Import ``numba.np.arraymath`` without ``scipy.linalg`` (see the module's notes)."""
+    """Import ``numba.np.arraymath`` without ``scipy.linalg`` (see the module's notes).
+
+    Only where the module checks for BLAS as the numba versions this was written for do: a
+    numba that imports ``scipy.linalg`` otherwise imports it as it comes (a module whose import
+    failed half-way would register its functions twice when imported again).
+    """
     if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
         return  # done already, or the check is cheap
+    try:
+        spec = importlib.util.find_spec("numba.np.arraymath")
+        source = Path(spec.origin).read_text(encoding="utf-8")
+    except (ImportError, AttributeError, TypeError, OSError, ValueError):
+        return
+    if source.count(_BLAS_CHECK) != 1 or "scipy" in source:
+        return  # not the check this expects, or a module that imports SciPy itself
     finder = _NoLinalg()
     sys.meta_path.insert(0, finder)
     try:
