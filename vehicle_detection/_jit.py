@@ -123,8 +123,7 @@ def _import_arraymath() -> None:
         return  # another numba: imported as it comes, by the first kernel
     finally:
         sys.meta_path.remove(finder)
-    if hasattr(arraymath, "_HAVE_BLAS"):
-        arraymath._HAVE_BLAS = importlib.util.find_spec("scipy") is not None  # SciPy installed, not imported
+    arraymath._HAVE_BLAS = importlib.util.find_spec("scipy") is not None  # SciPy installed, not imported
 
 
 def njit(**options):

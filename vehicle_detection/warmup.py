@@ -273,9 +273,10 @@ def load_search_kernels(model, plan=None) -> None:
 
     A blank band is scored with every window counted as hot, by the search's own code path, so
     that the kernels the first frame needs are ready. Loading them from a warm cache also starts
-    numba (its registries; not SciPy's linear algebra, see :mod:`~vehicle_detection._jit`):
-    a third of a second of one core or more, mostly in Python, which :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread
-    (after :func:`compile_search_kernels`) while the first frames are read and measured. A call
+    numba (its registries; not SciPy's linear algebra, see :mod:`~vehicle_detection._jit`): a
+    third of a second of one core or more, mostly in Python, which
+    :meth:`~vehicle_detection.detector.Detector.steps` runs in a thread (after
+    :func:`compile_search_kernels`) while the first frames are read and measured. A call
     while another thread loads them waits for it; later calls for the same kind of search return
     at once. The results never depend on this: a kernel not loaded here is compiled on first use.
 
