@@ -23,9 +23,14 @@ the embedded model:
 * ``car_horizon=none`` or ``car_horizon=on``: the horizon from the road's lines only, or also
   from the cars where the lines give none (:class:`vehicle_detection.horizon.CarHorizon`);
   ``car_margin=M``: the smallest margin of a window that counts there (its ``min_margin``);
+* ``car_candidates=A+B+...``: the candidate horizons the cars are searched at (its ``candidates``,
+  fractions of the picture height);
 * ``full_search_every=N``, ``edge_width=W``, ``horizon_height=H``, ``track_margin=M``: the search
   schedule's fields of :class:`vehicle_detection.search.SearchPlan` (N above 1 searches whole
-  frames every N frames and, in between, only the edges, the horizon and around the tracks).
+  frames every N frames and, in between, only the edges, the horizon and around the tracks);
+* ``band_top_K=ROW``: the band of the plan's scale K (0 for the smallest windows) starts at
+  ``ROW`` (rows of the plan's reference height, before the horizon moves the bands), e.g.
+  ``band_top_3=336``.
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
@@ -97,6 +102,8 @@ def model_with(variant: str, folder: Path) -> Path | None:
     schedule = {name: pairs.pop(name) for name in PLAN_FIELDS if name in pairs}
     switches = {name: pairs.pop(name, None) for name in ("shot_cuts", "exposure", "car_horizon")}
     car_margin = _number(variant, pairs.pop("car_margin")) if "car_margin" in pairs else None
+    candidates = pairs.pop("car_candidates", None)
+    tops = {name: pairs.pop(name) for name in list(pairs) if name.startswith("band_top_")}
     for name, value in switches.items():
         if value not in (None, "none", "on"):
             raise SystemExit(f"{variant!r}: {name} takes 'none' or 'on'")
@@ -132,8 +139,24 @@ def model_with(variant: str, folder: Path) -> Path | None:
             raise SystemExit(f"{variant!r}: car_margin needs the horizon from the cars (car_horizon=on)")
         rule = _replaced(variant, rule, min_margin=car_margin)
         model = model.replace(detector_config=model.detector_config.replace(car_horizon=rule))
+    if candidates is not None:
+        rule = model.detector_config.car_horizon
+        if rule is None:
+            raise SystemExit(f"{variant!r}: car_candidates needs the horizon from the cars (car_horizon=on)")
+        rule = _replaced(variant, rule, candidates=tuple(_number(variant, v) for v in candidates.split("+")))
+        model = model.replace(detector_config=model.detector_config.replace(car_horizon=rule))
     if schedule:
         plan = _replaced(variant, model.detector_config.plan, **{k: _number(variant, v, PLAN_FIELDS[k]) for k, v in schedule.items()})
+        model = model.replace(detector_config=model.detector_config.replace(plan=plan))
+    if tops:
+        plan = model.detector_config.plan
+        scales = list(plan.scales)
+        for name, row in tops.items():
+            k = _number(variant, name.removeprefix("band_top_"), int)
+            if not 0 <= k < len(scales):
+                raise SystemExit(f"{variant!r}: the plan has scales 0 to {len(scales) - 1}, not {k}")
+            scales[k] = _replaced(variant, scales[k], y_start=_number(variant, row, int))
+        plan = _replaced(variant, plan, scales=tuple(scales))
         model = model.replace(detector_config=model.detector_config.replace(plan=plan))
     model.save(path, overwrite=True)
     return path
@@ -160,7 +183,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, car_margin=M, full_search_every=N, edge_width=W, horizon_height=H, track_margin=M")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, car_margin=M, car_candidates=A+B+..., full_search_every=N, edge_width=W, horizon_height=H, track_margin=M, band_top_K=ROW")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
