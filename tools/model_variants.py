@@ -30,7 +30,8 @@ the embedded model:
   frames every N frames and, in between, only the edges, the horizon and around the tracks);
 * ``band_top_K=ROW``: the band of the plan's scale K (0 for the smallest windows) starts at
   ``ROW`` (rows of the plan's reference height, before the horizon moves the bands), e.g.
-  ``band_top_3=336``.
+  ``band_top_3=336``; ``scales=K+K+...``: only those scales of the plan are searched (e.g.
+  ``scales=0+2+3+4+5`` leaves out the 96-pixel windows).
 
 For each, the model is saved into a temporary folder, and every group of labels files is scored
 by the command line, as a user would::
@@ -104,6 +105,7 @@ def model_with(variant: str, folder: Path) -> Path | None:
     car_margin = _number(variant, pairs.pop("car_margin")) if "car_margin" in pairs else None
     candidates = pairs.pop("car_candidates", None)
     tops = {name: pairs.pop(name) for name in list(pairs) if name.startswith("band_top_")}
+    kept = pairs.pop("scales", None)
     for name, value in switches.items():
         if value not in (None, "none", "on"):
             raise SystemExit(f"{variant!r}: {name} takes 'none' or 'on'")
@@ -158,6 +160,13 @@ def model_with(variant: str, folder: Path) -> Path | None:
             scales[k] = _replaced(variant, scales[k], y_start=_number(variant, row, int))
         plan = _replaced(variant, plan, scales=tuple(scales))
         model = model.replace(detector_config=model.detector_config.replace(plan=plan))
+    if kept is not None:  # after band_top_K, which counts the plan's own scales
+        plan = model.detector_config.plan
+        index = [_number(variant, k, int) for k in kept.split("+")]
+        if not index or any(not 0 <= k < len(plan.scales) for k in index):
+            raise SystemExit(f"{variant!r}: the plan has scales 0 to {len(plan.scales) - 1}")
+        plan = _replaced(variant, plan, scales=tuple(plan.scales[k] for k in sorted(set(index))))
+        model = model.replace(detector_config=model.detector_config.replace(plan=plan))
     model.save(path, overwrite=True)
     return path
 
@@ -183,7 +192,7 @@ def evaluate(labels: list[Path], model: Path | None) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="+", metavar="VARIANT",
-                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, car_margin=M, car_candidates=A+B+..., full_search_every=N, edge_width=W, horizon_height=H, track_margin=M, band_top_K=ROW")
+                    help="'embedded', or key=value[,key=value...]: TrackerConfig fields, refine=L1.json[+L2.json...], refine_alpha=A, side_fit=none, side_reach=R, side_prior=P, shot_cuts=none|on, exposure=none|on, car_horizon=none|on, car_margin=M, car_candidates=A+B+..., full_search_every=N, edge_width=W, horizon_height=H, track_margin=M, band_top_K=ROW, scales=K+K+...")
     ap.add_argument("--group", nargs="+", action="append", metavar=("NAME", "LABELS"),
                     help="a name and its labels files (repeatable); default: the tune frames of both dev cameras")
     args = ap.parse_args(argv)
