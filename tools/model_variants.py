@@ -135,37 +135,35 @@ def model_with(variant: str, folder: Path) -> Path | None:
         if value is not None:
             setting = None if value == "none" else getattr(defaults, name)
             model = model.replace(detector_config=model.detector_config.replace(**{name: setting}))
+    rule_changes = {}  # of the horizon from the cars
     if car_margin is not None:
-        rule = model.detector_config.car_horizon
-        if rule is None:
-            raise SystemExit(f"{variant!r}: car_margin needs the horizon from the cars (car_horizon=on)")
-        rule = _replaced(variant, rule, min_margin=car_margin)
-        model = model.replace(detector_config=model.detector_config.replace(car_horizon=rule))
+        rule_changes["min_margin"] = car_margin
     if candidates is not None:
+        rule_changes["candidates"] = tuple(_number(variant, v) for v in candidates.split("+"))
+    if rule_changes:
         rule = model.detector_config.car_horizon
         if rule is None:
-            raise SystemExit(f"{variant!r}: car_candidates needs the horizon from the cars (car_horizon=on)")
-        rule = _replaced(variant, rule, candidates=tuple(_number(variant, v) for v in candidates.split("+")))
-        model = model.replace(detector_config=model.detector_config.replace(car_horizon=rule))
+            names = [n for n, v in (("car_margin", car_margin), ("car_candidates", candidates)) if v is not None]
+            raise SystemExit(f"{variant!r}: {' and '.join(names)} need{'s' if len(names) == 1 else ''} "
+                             "the horizon from the cars (car_horizon=on)")
+        model = model.replace(detector_config=model.detector_config.replace(car_horizon=_replaced(variant, rule, **rule_changes)))
+    plan = model.detector_config.plan
     if schedule:
-        plan = _replaced(variant, model.detector_config.plan, **{k: _number(variant, v, PLAN_FIELDS[k]) for k, v in schedule.items()})
-        model = model.replace(detector_config=model.detector_config.replace(plan=plan))
-    if tops:
-        plan = model.detector_config.plan
+        plan = _replaced(variant, plan, **{k: _number(variant, v, PLAN_FIELDS[k]) for k, v in schedule.items()})
+    if tops or kept is not None:
         scales = list(plan.scales)
         for name, row in tops.items():
             k = _number(variant, name.removeprefix("band_top_"), int)
             if not 0 <= k < len(scales):
                 raise SystemExit(f"{variant!r}: the plan has scales 0 to {len(scales) - 1}, not {k}")
             scales[k] = _replaced(variant, scales[k], y_start=_number(variant, row, int))
+        if kept is not None:  # after band_top_K, which counts the plan's own scales
+            index = [_number(variant, k, int) for k in kept.split("+")]
+            if not index or any(not 0 <= k < len(scales) for k in index):
+                raise SystemExit(f"{variant!r}: the plan has scales 0 to {len(scales) - 1}")
+            scales = [scales[k] for k in sorted(set(index))]
         plan = _replaced(variant, plan, scales=tuple(scales))
-        model = model.replace(detector_config=model.detector_config.replace(plan=plan))
-    if kept is not None:  # after band_top_K, which counts the plan's own scales
-        plan = model.detector_config.plan
-        index = [_number(variant, k, int) for k in kept.split("+")]
-        if not index or any(not 0 <= k < len(plan.scales) for k in index):
-            raise SystemExit(f"{variant!r}: the plan has scales 0 to {len(plan.scales) - 1}")
-        plan = _replaced(variant, plan, scales=tuple(plan.scales[k] for k in sorted(set(index))))
+    if plan is not model.detector_config.plan:
         model = model.replace(detector_config=model.detector_config.replace(plan=plan))
     model.save(path, overwrite=True)
     return path
