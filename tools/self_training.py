@@ -44,6 +44,8 @@ TUNE = ((0, 175), (363, 433))
 def pseudo_labels(boxes_csv: Path, video: Path, out: Path, *, stride: int, min_track: int) -> dict:
     """Write the tracks' boxes of the tune frames as a labels file; return its frames."""
     d = read_boxes_csv(boxes_csv)
+    if d.track_id is None:
+        raise SystemExit(f"{boxes_csv}: no track ids (a video's boxes from `detect` have them)")
     ids, counts = np.unique(d.track_id, return_counts=True)
     long_enough = set(ids[counts >= min_track].tolist()) - {-1}
     frames: dict[str, dict] = {}
