@@ -13,7 +13,7 @@ could do on their own footage. Each of ``--rounds`` (a minimum track length per 
 from the model of the round before.
 
 Prints, per round: the pseudo-labels (how many of those on labelled frames match a labelled car
-at IoU 0.5 or more, or lie on an ignore region: vehicles the rules do not ask for), then
+at IoU 0.5 or more, or lie in an ignore region, as ``evaluate`` matches a frame's boxes), then
 ``vehicle-detection evaluate`` of the model on both cameras' tune frames. The dashcam's scores
 are on the frames whose video gave the pseudo-labels (no labels were used to make them); the
 held-out frames are not scored.
@@ -33,8 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from camera_transfer import CAMERAS, negatives_options  # noqa: E402  the same training
 from model_variants import GROUPS, REPO, cli, evaluate  # noqa: E402  the same scoring
 
-from vehicle_detection.geometry import box_iou  # noqa: E402
 from vehicle_detection.io.tables import read_boxes_csv  # noqa: E402
+from vehicle_detection.metrics.detection import load_annotations, match_frame  # noqa: E402
 
 VIDEO = "videos/highway_dashcam_854x480.mp4"
 #: The dashcam's tune split (dev_set/README.md), inclusive ranges of frame indexes.
@@ -59,22 +59,15 @@ def pseudo_labels(boxes_csv: Path, video: Path, out: Path, *, stride: int, min_t
 
 
 def agreement(frames: dict, label_files: list[Path]) -> str:
-    """How many pseudo-labels of labelled frames match a labelled car, or an ignore region."""
+    """How the pseudo-labels of labelled frames score against the labels, as ``evaluate`` matches them."""
     truth = {}
     for path in label_files:
-        truth.update(json.loads(path.read_text())["frames"])
+        truth.update(load_annotations(path).frames)
     n = cars = ignored = 0
     for key, value in frames.items():
-        if key not in truth:
-            continue
-        for box in value["cars"]:
-            n += 1
-            labelled = np.asarray(truth[key]["cars"], float).reshape(-1, 4)
-            ignore = np.asarray(truth[key]["ignore"], float).reshape(-1, 4)
-            if len(labelled) and box_iou([box], labelled).max() >= 0.5:
-                cars += 1
-            elif len(ignore) and box_iou([box], ignore).max() >= 0.3:
-                ignored += 1
+        if int(key) in truth:
+            match = match_frame(value["cars"], truth[int(key)])
+            n, cars, ignored = n + len(value["cars"]), cars + match.tp, ignored + match.ignored
     return f"{n} on labelled frames: {cars} a labelled car (IoU >= 0.5), {ignored} on an ignore region"
 
 
