@@ -29,6 +29,7 @@ import numpy as np
 
 from . import __version__, deprecation
 from .config import DetectorConfig
+from .convnet import ConvNet
 from .errors import ModelError
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
 from .io import atomic_output, input_file
@@ -90,7 +91,7 @@ def _digest(arrays: dict[str, np.ndarray], header: dict) -> str:
     """SHA-256 over the arrays and the header (minus the digest itself), canonically encoded."""
     h = hashlib.sha256()
     h.update(json.dumps({k: v for k, v in header.items() if k != "sha256"}, sort_keys=True).encode("utf-8"))
-    for name in (*_ARRAYS, *(b for b in _BOX_ARRAYS if b in arrays)):
+    for name in (*_ARRAYS, *(b for b in (*_BOX_ARRAYS, *ConvNet.array_names()) if b in arrays)):
         a = np.ascontiguousarray(arrays[name], dtype="<f8")
         h.update(name.encode())
         h.update(str(a.shape).encode())
@@ -121,6 +122,10 @@ class VehicleClassifier:
     box_regressor : BoxRegressor, optional
         Predicts a vehicle's edges from a hot window's features (:mod:`~vehicle_detection.refine`);
         None: windows are not refined.
+    convnet : ConvNet, optional
+        A network that scores the search's windows and gives each its vehicle's edges
+        (:mod:`~vehicle_detection.convnet`) in place of the linear SVM and the box refinement;
+        the SVM is kept beside it (trained on the same patches). None: the SVM scores.
 
     Attributes
     ----------
@@ -150,6 +155,7 @@ class VehicleClassifier:
     library_version: str = __version__
     detector_config: DetectorConfig = field(default_factory=DetectorConfig)
     box_regressor: BoxRegressor | None = None
+    convnet: ConvNet | None = None
     weights: np.ndarray = field(init=False, repr=False)
     bias: float = field(init=False, repr=False)
 
@@ -162,6 +168,8 @@ class VehicleClassifier:
         if self.box_regressor is not None:
             if not isinstance(self.box_regressor, BoxRegressor) or self.box_regressor.n_features != n:
                 raise ValueError(f"box_regressor must be a BoxRegressor over the model's {n} features")
+        if self.convnet is not None and not isinstance(self.convnet, ConvNet):
+            raise ValueError(f"convnet must be a ConvNet or None; got {type(self.convnet).__name__}")
         set_ = object.__setattr__
         for name in ("scaler_mean", "scaler_scale", "coef"):
             arr = np.array(getattr(self, name), dtype=np.float64, copy=True)
@@ -178,7 +186,8 @@ class VehicleClassifier:
         set_(self, "bias", float(self.intercept - np.dot(self.coef, self.scaler_mean / self.scaler_scale)))
 
     def __repr__(self):
-        return f"VehicleClassifier({self.config!r}, n_features={self.config.n_features})"
+        net = ", convnet" if self.convnet is not None else ""
+        return f"VehicleClassifier({self.config!r}, n_features={self.config.n_features}{net})"
 
     def replace(self, **changes: Any) -> VehicleClassifier:
         """A new model with some fields replaced, e.g. ``model.replace(detector_config=...)``."""
@@ -231,7 +240,10 @@ class VehicleClassifier:
         return (self.decision_function(features) > 0).astype(np.int8)
 
     def decision_images(self, images: np.ndarray) -> np.ndarray:
-        """Margins of RGB ``uint8`` patches ``(N, window, window, 3)``."""
+        """Margins of RGB ``uint8`` patches ``(N, window, window, 3)``: the network's scores
+        where the model has one, else the SVM's."""
+        if self.convnet is not None:
+            return self.convnet.score_patches(np.asarray(images)).astype(np.float64)[:, 0]
         return self.decision_function(extract_features(images, self.config))
 
     # --- persistence ---------------------------------------------------------------------------
@@ -244,6 +256,8 @@ class VehicleClassifier:
         }
         if self.box_regressor is not None:
             arrays.update(box_coef=self.box_regressor.coef, box_intercept=self.box_regressor.intercept)
+        if self.convnet is not None:
+            arrays.update(self.convnet.arrays())
         return arrays
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False, inputs=()) -> Path:
@@ -262,6 +276,8 @@ class VehicleClassifier:
             "detector_config": self.detector_config.to_dict(),
             "metrics": dict(self.metrics),
         }
+        if self.convnet is not None:
+            meta["convnet"] = self.convnet.spec()
         meta["sha256"] = _digest(arrays, meta)
         meta_bytes = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), dtype=np.uint8)
         path = Path(path)
@@ -333,6 +349,9 @@ class VehicleClassifier:
         regressor = _box_regressor(path, data, n)
         if regressor is not None:
             arrays.update(box_coef=regressor.coef, box_intercept=regressor.intercept)
+        convnet = _convnet(path, data, meta)
+        if convnet is not None:
+            arrays.update(convnet.arrays())
         if np.any(arrays["scaler_scale"] <= 0):
             raise ModelError(f"{path}: scaler_scale must be positive")
         problem = _implausible_weights(arrays)
@@ -353,7 +372,21 @@ class VehicleClassifier:
             library_version=lib,
             detector_config=detector_config,
             box_regressor=regressor,
+            convnet=convnet,
         )
+
+
+def _convnet(path: Path, data: dict[str, np.ndarray], meta: dict) -> ConvNet | None:
+    """The model file's window-scoring network, if it has one."""
+    if "net_w0" not in data:
+        if "convnet" in meta:
+            raise ModelError(f"{path}: the header describes a network, but the file holds none of its arrays")
+        return None
+    try:
+        ConvNet.check_spec(meta.get("convnet"))
+        return ConvNet.from_arrays(data)
+    except ValueError as exc:
+        raise ModelError(f"{path}: {exc}") from None
 
 
 def _box_regressor(path: Path, data: dict[str, np.ndarray], n: int) -> BoxRegressor | None:
@@ -380,6 +413,8 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
             infos = {i.filename.removesuffix(".npy"): i for i in zf.infolist()}
             if set(_BOX_ARRAYS) <= set(infos):
                 expected |= set(_BOX_ARRAYS)
+            if set(ConvNet.array_names()) <= set(infos):
+                expected |= set(ConvNet.array_names())
             if set(infos) != expected:
                 raise ModelError(f"{path}: not a {MODEL_FORMAT} file: arrays {sorted(infos)}, expected {sorted(expected)}")
             for name, info in infos.items():

@@ -59,7 +59,7 @@ from .features import (
     region_hog,
 )
 from .io.images import as_rgb_uint8, check_frame_shape
-from .refine import working_frame
+from .refine import apply_offsets, working_frame
 
 if TYPE_CHECKING:
     from .classifier import VehicleClassifier
@@ -1041,6 +1041,8 @@ def search(
     cfg = model.config
     if around is not None:
         around = np.asarray(around, np.float64).reshape(-1, 4) * f
+    if model.convnet is not None:
+        return _search_convnet(frame, work, f, model, plan, all_windows=all_windows, around=around)
     refine = model.box_regressor is not None and not all_windows
     above = plan.threshold if refine else None
     cascade = None if all_windows or plan.coarse_margin is None else (plan.threshold, plan.coarse_margin)
@@ -1073,4 +1075,36 @@ def search(
             refined = model.box_regressor.refine_products(np.concatenate(windows), np.concatenate(products), frame.shape)
         data["box"] = refined
     # one Detections for the frame (its checks once, not once per scale)
+    return Detections(np.concatenate(boxes), score=np.concatenate(scores), data=data)
+
+
+def _search_convnet(frame: np.ndarray, work: np.ndarray, f: float, model: VehicleClassifier, plan: SearchPlan, *,
+                    all_windows: bool, around: np.ndarray | None) -> Detections:
+    """:func:`search` with the model's network: each band scored whole in one pass
+    (:meth:`~vehicle_detection.convnet.ConvNet.scores`), the hot windows' boxes moved by the
+    network's edge offsets (``data["box"]``, as the box refinement gives them)."""
+    cfg = model.config
+    boxes, scores, scales, windows, offsets = [], [], [], [], []
+    for k, s in enumerate(plan.scales):
+        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
+        if band is None:
+            continue
+        out = model.convnet.scores(band.image)[np.ix_(band.rows, band.cols)].reshape(-1, 5)
+        margins = out[:, 0].astype(np.float64)
+        keep = np.ones(len(margins), bool) if all_windows else margins > plan.threshold
+        if around is not None:
+            keep &= _scheduled_mask(band, cfg, plan, work.shape[1], around).ravel()
+        kept = _band_windows(band, cfg, f, keep)
+        boxes.append(_clipped_boxes(kept, frame.shape))
+        scores.append(margins[keep])
+        scales.append(np.full(len(kept), k, np.int64))
+        windows.append(kept)
+        offsets.append(out[keep, 1:])
+    if not boxes:
+        boxes, scores, scales, windows, offsets = ([np.zeros((0, 4), np.int64)], [np.zeros(0)], [np.zeros(0, np.int64)],
+                                                   [np.zeros((0, 4))], [np.zeros((0, 4), np.float32)])
+    data = {"scale_index": np.concatenate(scales)}
+    if not all_windows:
+        wins = np.concatenate(windows)
+        data["box"] = apply_offsets(wins, np.concatenate(offsets), frame.shape) if len(wins) else np.zeros((0, 4), np.int64)
     return Detections(np.concatenate(boxes), score=np.concatenate(scores), data=data)

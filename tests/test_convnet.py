@@ -1,0 +1,166 @@
+"""The window-scoring network: its NumPy reference, OpenCV's DNN run of it, the model file, the
+search with it, and (with PyTorch) its training and export."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from vehicle_detection.classifier import VehicleClassifier, load_default_model
+from vehicle_detection.convnet import _LAYERS, N_OUT, ConvNet
+from vehicle_detection.errors import ModelError
+from vehicle_detection.refine import apply_offsets
+from vehicle_detection.search import _band, _band_windows, search
+
+
+def random_net(seed=0, channels=(8, 12, 16, 16), scale=0.15, out_bias=None) -> ConvNet:
+    rng = np.random.default_rng(seed)
+    outs = [*channels, channels[-1], N_OUT]
+    ws, bs, cin = [], [], 3
+    for (kh, kw, _, _), c in zip(_LAYERS, outs):
+        ws.append(rng.normal(0, scale, (kh, kw, cin, c)).astype(np.float32))
+        bs.append(rng.normal(0, 0.05, c).astype(np.float32))
+        cin = c
+    if out_bias is not None:
+        ws[-1] = np.zeros_like(ws[-1])
+        bs[-1] = np.asarray(out_bias, np.float32)
+    return ConvNet(tuple(ws), tuple(bs))
+
+
+@pytest.mark.parametrize("shape", [(64, 64), (107, 853), (112, 1280), (75, 99)])
+def test_dnn_run_equals_the_numpy_reference(shape):
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    net = random_net()
+    ref = net.forward(image)
+    assert ref.shape == (shape[0] // 8 - 7, shape[1] // 8 - 7, N_OUT)
+    np.testing.assert_allclose(net.scores(image), ref, rtol=1e-4, atol=1e-4)
+
+
+def test_patch_scores_are_the_forward_pass_of_each_patch():
+    rng = np.random.default_rng(2)
+    patches = rng.integers(0, 256, (5, 64, 64, 3), dtype=np.uint8)
+    net = random_net()
+    got = net.score_patches(patches)
+    for p, g in zip(patches, got):
+        np.testing.assert_allclose(g, net.forward(p)[0, 0], rtol=1e-5, atol=1e-5)
+
+
+def test_a_window_is_scored_from_its_own_pixels():
+    """The window at (8r, 8c) of a band is the one the output's (r, c) scores: a bright square
+    moved by one cell moves the response by one output cell."""
+    net = random_net(3)
+    image = np.full((160, 240, 3), 90, np.uint8)
+    image[56:88, 96:136] = 230
+    moved = np.full_like(image, 90)
+    moved[64:96, 104:144] = 230
+    a, b = net.forward(image), net.forward(moved)
+    # away from the image border (whose zero padding does not move), by one output cell
+    np.testing.assert_allclose(a[2:-3, 2:-3], b[3:-2, 3:-2], rtol=1e-4, atol=1e-4)
+    assert np.abs(a[2:-3, 2:-3] - b[2:-3, 2:-3]).max() > 1e-2
+
+
+def test_bad_weights_are_refused():
+    net = random_net()
+    with pytest.raises(ValueError, match="layer 0"):
+        ConvNet((net.weights[0][:, :, :2], *net.weights[1:]), net.biases)
+    bad = list(net.weights)
+    bad[2] = np.full_like(bad[2], np.nan)
+    with pytest.raises(ValueError, match="finite"):
+        ConvNet(tuple(bad), net.biases)
+
+
+@pytest.fixture(scope="module")
+def net_model():
+    return load_default_model().replace(convnet=random_net(), box_regressor=None)
+
+
+def test_model_file_round_trip(net_model, tmp_path):
+    path = net_model.save(tmp_path / "m.npz")
+    back = VehicleClassifier.load(path)
+    assert back.convnet is not None
+    for a, b in zip(back.convnet.weights, net_model.convnet.weights):
+        np.testing.assert_array_equal(a, b)
+    assert "convnet" in repr(back)
+
+
+def test_model_file_with_an_altered_network_is_refused(net_model, tmp_path):
+    path = net_model.save(tmp_path / "m.npz")
+    with np.load(path) as npz:
+        arrays = dict(npz)
+    arrays["net_b5"] = arrays["net_b5"] + 1
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ModelError, match="checksum"):
+        VehicleClassifier.load(tmp_path / "bad.npz")
+    del arrays["net_b5"]
+    np.savez(tmp_path / "short.npz", **arrays)
+    with pytest.raises(ModelError, match="arrays"):
+        VehicleClassifier.load(tmp_path / "short.npz")
+
+
+def test_search_scores_every_plan_window_with_the_network(frame720):
+    """A network that scores 5 everywhere, with constant edge offsets: every window of the plan
+    is hot, and each box is its window moved by those offsets."""
+    offsets = np.array([0.1, 0.2, -0.1, -0.05], np.float32)
+    model = load_default_model()
+    model = model.replace(convnet=random_net(out_bias=[5.0, *offsets]), box_regressor=None)
+    plan = dataclasses.replace(model.detector_config.plan, threshold=4.0)
+    found = search(frame720, model, plan)
+    expected = []
+    for s in plan.scales:
+        band = _band(frame720, s, model.config, plan.overhang_of(s), plan.y_shift)
+        if band is not None:
+            expected.append(_band_windows(band, model.config, 1.0))
+    windows = np.concatenate(expected)
+    assert len(found) == len(windows)
+    np.testing.assert_allclose(found.score, 5.0, atol=1e-4)
+    np.testing.assert_array_equal(found.data["box"], apply_offsets(windows, np.tile(offsets, (len(windows), 1)), frame720.shape))
+    assert len(search(frame720, model, dataclasses.replace(plan, threshold=5.5))) == 0
+
+
+@pytest.fixture(scope="module")
+def frame720():
+    rng = np.random.default_rng(4)
+    return rng.integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+
+
+def test_export_folds_batch_normalisation_exactly():
+    torch = pytest.importorskip("torch", reason="training the network needs PyTorch (the train-cnn extra)")
+    from vehicle_detection.training.convnet import export, network
+
+    torch.manual_seed(0)
+    model = network((8, 12, 16, 16))
+    for m in model:
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+            m.weight.data.uniform_(0.5, 1.5)
+            m.bias.data.uniform_(-0.2, 0.2)
+    model.eval()
+    rng = np.random.default_rng(5)
+    patches = rng.integers(0, 256, (6, 64, 64, 3), dtype=np.uint8)
+    half = patches.reshape(6, 32, 2, 32, 2, 3).mean(axis=(2, 4), dtype=np.float32)
+    x = torch.from_numpy(((half / 255 - 0.5) / 0.25).transpose(0, 3, 1, 2).copy())
+    with torch.no_grad():
+        want = model(x)[:, :, 0, 0].numpy()
+    np.testing.assert_allclose(export(model).score_patches(patches), want, rtol=1e-4, atol=1e-4)
+
+
+def test_training_learns_a_separable_set():
+    pytest.importorskip("torch", reason="training the network needs PyTorch (the train-cnn extra)")
+    from vehicle_detection.training.convnet import ConvNetTraining, fit_convnet
+
+    rng = np.random.default_rng(6)
+    n = 256
+    patches = rng.integers(60, 120, (n, 64, 64, 3), dtype=np.uint8)
+    labels = np.arange(n) % 2
+    patches[labels == 1, 20:44, 12:52] = 20  # a dark block: the "vehicle"
+    offsets = np.full((n, 4), np.nan, np.float32)
+    offsets[labels == 1] = [0.1, 0.2, -0.1, -0.2]
+    net, record = fit_convnet(patches, labels, offsets, ConvNetTraining(channels=(8, 8, 8, 8), epochs=12, batch=32, learning_rate=5e-3))
+    out = net.score_patches(patches)
+    assert ((out[:, 0] > 0) == (labels == 1)).mean() > 0.95
+    np.testing.assert_allclose(out[labels == 1, 1:].mean(axis=0), [0.1, 0.2, -0.1, -0.2], atol=0.08)
+    assert record["n_box_targets"] == n // 2

@@ -1,0 +1,176 @@
+"""Leave one camera out: for each labelled camera, a model built without any of its frames, scored on them.
+
+    python tools/leave_one_camera_out.py [--classifier cnn|svm] [--cameras NAME ...] [--work DIR]
+
+For each camera C of ``CAMERAS`` (those whose footage is in ../shared/data): train on the archives
+(without ``non-vehicles/Extras``, which are frames of the project camera, when C is the project
+camera) and the training labels of every other camera, then score every labelled frame of C with
+``vehicle-detection evaluate``. ``--all`` also trains on every camera and scores each camera's
+held-out split (the measure of a camera with labels). Prints one table: F1 at IoU 0.5 / 0.7 and
+the mean IoU of matched boxes, per camera, and their means.
+
+``--classifier cnn`` trains the window-scoring network (:mod:`vehicle_detection.training.convnet`,
+needs the ``train-cnn`` extra) and saves it in a model beside the embedded model's SVM;
+``svm`` runs the README's ``train`` command (HOG + linear SVM, with the box refinement).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEV = ROOT / "dev_set"
+
+#: camera -> (training labels, labels scored when it is left out, held-out labels)
+CAMERAS = {
+    "project": (["clip_A.json", "test_images.json"],
+                ["clip_A.json", "test_video.json", "test_images.json", "clip_A_tracks.json"], []),
+    "highway_dashcam": (["highway_dashcam_tune.json"],
+                        ["highway_dashcam_tune.json", "highway_dashcam_tune_extra.json", "highway_dashcam_heldout.json"],
+                        ["highway_dashcam_heldout.json"]),
+    "city_india": (["city_india_tune.json"], ["city_india_tune.json", "city_india_heldout.json"], ["city_india_heldout.json"]),
+    "autobahn": (["autobahn_tune.json"], ["autobahn_tune.json", "autobahn_heldout.json"], ["autobahn_heldout.json"]),
+    "residential": (["residential_tune.json"], ["residential_tune.json", "residential_heldout.json"], ["residential_heldout.json"]),
+}
+
+
+def available(names):
+    from vehicle_detection.metrics.detection import load_annotations
+
+    out = []
+    for name in names:
+        files = CAMERAS[name][0] + CAMERAS[name][1]
+        if all((DEV / f).exists() for f in files):
+            src = load_annotations(DEV / CAMERAS[name][0][0]).source
+            if src is not None and src.exists():
+                out.append(name)
+                continue
+        print(f"{name}: skipped (labels or footage missing)", file=sys.stderr)
+    return out
+
+
+def evaluate(model: Path, labels: list[str]) -> dict:
+    cmd = ["vehicle-detection", "evaluate", "--labels", *[str(DEV / f) for f in labels], "--model", str(model), "--json"]
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode:
+        raise SystemExit(f"evaluate failed: {' '.join(cmd)}\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout)["all"]
+
+
+def build_cnn(train_cams: list[str], out: Path, *, without_extras: bool, args) -> dict:
+    from vehicle_detection.classifier import load_default_model
+    from vehicle_detection.metrics.detection import load_annotations
+    from vehicle_detection.training.convnet import ConvNetTraining, fit_convnet, frame_samples, hard_windows, samples_from
+    from vehicle_detection.training.data import load_dataset
+
+    cfg = ConvNetTraining(epochs=args.epochs)
+    archives = load_dataset(args.data_dir)
+    if without_extras:
+        archives = archives.subset(archives.sources != "non-vehicles/Extras")
+    anns = [load_annotations(DEV / f) for c in train_cams for f in CAMERAS[c][0]]
+    frames = frame_samples(anns, cfg)
+    data = samples_from([archives]).concatenate(frames)
+    print(f"  {len(data)} patches ({int(data.labels.sum())} vehicles; {len(frames)} from {len(anns)} label files)", flush=True)
+    base = load_default_model()
+    net, record = fit_convnet(data.patches, data.labels, data.offsets, cfg, progress=args.verbose)
+    for r in range(1, args.rounds):
+        hard = hard_windows(net, anns, base.detector_config.plan)
+        data = data.concatenate(hard)
+        print(f"  round {r + 1}: {len(hard)} hard negatives", flush=True)
+        net, record = fit_convnet(data.patches, data.labels, data.offsets, cfg, progress=args.verbose)
+    plan = base.detector_config.plan
+    import dataclasses
+    dc = base.detector_config.replace(plan=dataclasses.replace(plan, threshold=args.threshold, coarse_margin=None))
+    model = base.replace(convnet=net, box_regressor=None, detector_config=dc,
+                         metrics={"convnet": record, "training_cameras": train_cams})
+    model.save(out, overwrite=True)
+    return record
+
+
+def build_svm(train_cams: list[str], out: Path, *, without_extras: bool, args) -> dict:
+    if without_extras:
+        raise SystemExit("--classifier svm cannot leave out the archives' project-camera negatives yet")
+    labels = [str(DEV / f) for c in train_cams for f in CAMERAS[c][0]]
+    cmd = ["vehicle-detection", "train", "--data-dir", args.data_dir, "--labels", *labels, "--model", str(out), "--overwrite", "--json"]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return {}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--classifier", choices=("cnn", "svm"), default="cnn")
+    p.add_argument("--cameras", nargs="*", default=list(CAMERAS))
+    p.add_argument("--pool", nargs="*", default=list(CAMERAS), help="the cameras that may train (default: all)")
+    p.add_argument("--data-dir", default=str(ROOT.parent / "shared" / "data"))
+    p.add_argument("--work", default="loco_models")
+    p.add_argument("--epochs", type=int, default=8)
+    p.add_argument("--rounds", type=int, default=1)
+    p.add_argument("--threshold", type=float, default=1.0)
+    p.add_argument("--all", action="store_true", help="also train on every camera and score the held-out splits")
+    p.add_argument("--reuse", action="store_true", help="score models already in --work")
+    p.add_argument("--verbose", action="store_true")
+    args = p.parse_args(argv)
+    cams = available(args.cameras)
+    everyone = available(args.pool)
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    build = build_cnn if args.classifier == "cnn" else build_svm
+    rows = []
+    for cam in cams:
+        model = work / f"{args.classifier}_without_{cam}.npz"
+        t = time.perf_counter()
+        if args.reuse and model.exists():
+            model = _with_threshold(model, args.threshold)
+        else:
+            print(f"{cam}: training without it on {[c for c in everyone if c != cam]}", flush=True)
+            build([c for c in everyone if c != cam], model, without_extras=cam == "project", args=args)
+        pooled = evaluate(model, CAMERAS[cam][1])
+        rows.append(("left out", cam, pooled))
+        print(f"{cam}: {_fmt(pooled)} ({time.perf_counter() - t:.0f} s)", flush=True)
+    if args.all:
+        model = work / f"{args.classifier}_all.npz"
+        if not (args.reuse and model.exists()):
+            build(everyone, model, without_extras=False, args=args)
+        for cam in everyone:
+            if CAMERAS[cam][2]:
+                rows.append(("held out", cam, evaluate(model, CAMERAS[cam][2])))
+        rows.append(("tune", "project", evaluate(model, CAMERAS["project"][1])))
+    print(f"\n| split | camera | cars | F1 at IoU 0.5 / 0.7 | mean IoU |  ({args.classifier})")
+    print("| --- | --- | --- | --- | --- |")
+    for split, cam, pooled in rows:
+        print(f"| {split} | {cam} | {pooled['n_cars']} | {pooled['at_iou_0.5']['f1']:.3f} / {pooled['at_iou_0.7']['f1']:.3f} | {pooled['at_iou_0.5']['mean_iou']:.3f} |")
+    loco = [r[2] for r in rows if r[0] == "left out"]
+    if loco:
+        m5 = np.mean([r["at_iou_0.5"]["f1"] for r in loco])
+        m7 = np.mean([r["at_iou_0.7"]["f1"] for r in loco])
+        print(f"| left out | mean of {len(loco)} | | {m5:.3f} / {m7:.3f} | |")
+    return 0
+
+
+def _with_threshold(path: Path, threshold: float) -> Path:
+    """A copy of a saved model with another window threshold (to score a model again)."""
+    import dataclasses
+
+    from vehicle_detection.classifier import load_model
+
+    m = load_model(path)
+    plan = dataclasses.replace(m.detector_config.plan, threshold=threshold)
+    out = path.with_name(f"{path.stem}_t{threshold:g}.npz")
+    m.replace(detector_config=m.detector_config.replace(plan=plan)).save(out, overwrite=True)
+    return out
+
+
+def _fmt(p):
+    return (f"F1 {p['at_iou_0.5']['f1']:.3f} / {p['at_iou_0.7']['f1']:.3f}, mean IoU {p['at_iou_0.5']['mean_iou']:.3f} "
+            f"(tp {p['at_iou_0.5']['tp']}, fp {p['at_iou_0.5']['fp']}, fn {p['at_iou_0.5']['fn']})")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
