@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vehicle_detection.classifier import VehicleClassifier, load_default_model
-from vehicle_detection.convnet import _LAYERS, N_OUT, ConvNet
+from vehicle_detection.convnet import _LAYERS, N_OUT, ConvNet, halve
 from vehicle_detection.errors import ModelError
 from vehicle_detection.refine import apply_offsets
 from vehicle_detection.search import _band, _band_windows, search
@@ -141,7 +141,7 @@ def test_export_folds_batch_normalisation_exactly():
     model.eval()
     rng = np.random.default_rng(5)
     patches = rng.integers(0, 256, (6, 64, 64, 3), dtype=np.uint8)
-    half = patches.reshape(6, 32, 2, 32, 2, 3).mean(axis=(2, 4), dtype=np.float32)
+    half = np.stack([halve(p) for p in patches]).astype(np.float32)
     x = torch.from_numpy(((half / 255 - 0.5) / 0.25).transpose(0, 3, 1, 2).copy())
     with torch.no_grad():
         want = model(x)[:, :, 0, 0].numpy()
@@ -164,3 +164,33 @@ def test_training_learns_a_separable_set():
     assert ((out[:, 0] > 0) == (labels == 1)).mean() > 0.95
     np.testing.assert_allclose(out[labels == 1, 1:].mean(axis=0), [0.1, 0.2, -0.1, -0.2], atol=0.08)
     assert record["n_box_targets"] == n // 2
+
+
+def test_train_cli_builds_a_network_model_that_detect_runs(tmp_path, capsys):
+    pytest.importorskip("torch", reason="training the network needs PyTorch (the train-cnn extra)")
+    from pathlib import Path
+
+    from conftest import small_archives
+
+    from vehicle_detection.cli.main import main
+
+    data = small_archives(tmp_path / "data", 60)
+    labels = Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json"
+    model = tmp_path / "net.npz"
+    args = ["train", "--data-dir", str(data), "--labels", str(labels), "--classifier", "convnet", "--epochs", "1",
+            "--rounds", "2", "--model", str(model), "--json"]
+    assert main(args) == 0
+    loaded = VehicleClassifier.load(model)
+    assert loaded.convnet is not None and loaded.box_regressor is None
+    record = loaded.metrics["convnet"]
+    assert record["rounds"] == 2 and record["n_box_targets"] > 0
+    assert loaded.detector_config.plan.threshold == 2.0
+    scales = [s.scale for s in loaded.detector_config.plan.scales]
+    assert min(scales) == 0.75 and max(scales) == 6.0
+    capsys.readouterr()
+    assert main(["detect", str(Path(__file__).resolve().parents[1] / "test_images" / "test1.jpg"), "--model", str(model),
+                 "--out", str(tmp_path / "o.jpg"), "--boxes", str(tmp_path / "b.csv")]) == 0
+    assert (tmp_path / "b.csv").read_text().startswith("frame,")
+    # without labelled frames there is nothing to learn the cars' edges from: one line, exit 3
+    assert main(["train", "--data-dir", str(data), "--classifier", "convnet", "--model", str(tmp_path / "x.npz")]) == 3
+    assert "--labels" in capsys.readouterr().err

@@ -56,6 +56,17 @@ def available(names):
     return out
 
 
+def folds(left_out: list[str], pool: list[str]) -> list[tuple[str, list[str], list[str], bool]]:
+    """For each camera left out: ``(camera, training cameras, label files scored, whether the
+    archives' project-camera negatives are left out too)``. No training camera is the one scored."""
+    return [(cam, [c for c in pool if c != cam], CAMERAS[cam][1], cam == "project") for cam in left_out]
+
+
+def training_labels(cameras: list[str]) -> list[Path]:
+    """The label files the models train on for these cameras."""
+    return [DEV / f for c in cameras for f in CAMERAS[c][0]]
+
+
 def evaluate(model: Path, labels: list[str]) -> dict:
     cmd = ["vehicle-detection", "evaluate", "--labels", *[str(DEV / f) for f in labels], "--model", str(model), "--json"]
     out = subprocess.run(cmd, capture_output=True, text=True)
@@ -65,39 +76,41 @@ def evaluate(model: Path, labels: list[str]) -> dict:
 
 
 def build_cnn(train_cams: list[str], out: Path, *, without_extras: bool, args) -> dict:
+    """The whole network model from the archives and the training cameras' labels, as
+    ``vehicle-detection train --classifier convnet`` builds it: the SVM (kept in the file, unused
+    by the search), then the network in rounds with hard negatives."""
     from vehicle_detection.classifier import load_default_model
     from vehicle_detection.metrics.detection import load_annotations
-    from vehicle_detection.training.convnet import ConvNetTraining, fit_convnet, frame_samples, hard_windows, samples_from
+    from vehicle_detection.training.convnet import ConvNetTraining, with_convnet
     from vehicle_detection.training.data import load_dataset
+    from vehicle_detection.training.fit import train
 
-    cfg = ConvNetTraining(epochs=args.epochs)
     archives = load_dataset(args.data_dir)
     if without_extras:
         archives = archives.subset(archives.sources != "non-vehicles/Extras")
-    anns = [load_annotations(DEV / f) for c in train_cams for f in CAMERAS[c][0]]
-    frames = frame_samples(anns, cfg)
-    data = samples_from([archives]).concatenate(frames)
-    print(f"  {len(data)} patches ({int(data.labels.sum())} vehicles; {len(frames)} from {len(anns)} label files)", flush=True)
-    base = load_default_model()
-    net, record = fit_convnet(data.patches, data.labels, data.offsets, cfg, progress=args.verbose)
-    for r in range(1, args.rounds):
-        hard = hard_windows(net, anns, base.detector_config.plan)
-        data = data.concatenate(hard)
-        print(f"  round {r + 1}: {len(hard)} hard negatives", flush=True)
-        net, record = fit_convnet(data.patches, data.labels, data.offsets, cfg, progress=args.verbose)
-    plan = base.detector_config.plan
-    import dataclasses
-    dc = base.detector_config.replace(plan=dataclasses.replace(plan, threshold=args.threshold, coarse_margin=None))
-    model = base.replace(convnet=net, box_regressor=None, detector_config=dc,
-                         metrics={"convnet": record, "training_cameras": train_cams})
-    model.save(out, overwrite=True)
-    return record
+    anns = [load_annotations(f) for f in training_labels(train_cams)]
+    print(f"  {len(archives)} archive patches; {len(anns)} label files", flush=True)
+    model = train(archives, load_default_model().config, evaluate=False)
+    model = with_convnet(model, archives, anns, ConvNetTraining(epochs=args.epochs), rounds=args.rounds, progress=args.verbose)
+    _settings(model, args).save(out, overwrite=True)
+    return model.metrics["convnet"]
+
+
+def _settings(model, args):
+    """The network model's detector settings (:func:`vehicle_detection.training.convnet.detector_settings`)."""
+    from vehicle_detection.training.convnet import detector_settings
+
+    from vehicle_detection.classifier import load_default_model
+
+    dc = detector_settings(load_default_model().detector_config, threshold=args.threshold, candidates=args.candidates,
+                           small=not args.no_small, large=not args.no_large)
+    return model.replace(detector_config=dc)
 
 
 def build_svm(train_cams: list[str], out: Path, *, without_extras: bool, args) -> dict:
     if without_extras:
         raise SystemExit("--classifier svm cannot leave out the archives' project-camera negatives yet")
-    labels = [str(DEV / f) for c in train_cams for f in CAMERAS[c][0]]
+    labels = [str(f) for f in training_labels(train_cams)]
     cmd = ["vehicle-detection", "train", "--data-dir", args.data_dir, "--labels", *labels, "--model", str(out), "--overwrite", "--json"]
     subprocess.run(cmd, check=True, capture_output=True)
     return {}
@@ -113,6 +126,9 @@ def main(argv=None) -> int:
     p.add_argument("--epochs", type=int, default=8)
     p.add_argument("--rounds", type=int, default=1)
     p.add_argument("--threshold", type=float, default=1.0)
+    p.add_argument("--candidates", type=float, nargs="+", default=[0.19, 0.27, 0.35, 0.43, 0.51, 0.59, 0.67])
+    p.add_argument("--no-small", action="store_true", help="without the 48-pixel windows")
+    p.add_argument("--no-large", action="store_true", help="without the 384-pixel windows")
     p.add_argument("--all", action="store_true", help="also train on every camera and score the held-out splits")
     p.add_argument("--reuse", action="store_true", help="score models already in --work")
     p.add_argument("--verbose", action="store_true")
@@ -123,15 +139,15 @@ def main(argv=None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     build = build_cnn if args.classifier == "cnn" else build_svm
     rows = []
-    for cam in cams:
+    for cam, train_cams, scored, without_extras in folds(cams, everyone):
         model = work / f"{args.classifier}_without_{cam}.npz"
         t = time.perf_counter()
         if args.reuse and model.exists():
-            model = _with_threshold(model, args.threshold)
+            model = _rescored(model, args)
         else:
-            print(f"{cam}: training without it on {[c for c in everyone if c != cam]}", flush=True)
-            build([c for c in everyone if c != cam], model, without_extras=cam == "project", args=args)
-        pooled = evaluate(model, CAMERAS[cam][1])
+            print(f"{cam}: training without it on {train_cams}", flush=True)
+            build(train_cams, model, without_extras=without_extras, args=args)
+        pooled = evaluate(model, scored)
         rows.append(("left out", cam, pooled))
         print(f"{cam}: {_fmt(pooled)} ({time.perf_counter() - t:.0f} s)", flush=True)
     if args.all:
@@ -154,16 +170,12 @@ def main(argv=None) -> int:
     return 0
 
 
-def _with_threshold(path: Path, threshold: float) -> Path:
-    """A copy of a saved model with another window threshold (to score a model again)."""
-    import dataclasses
-
+def _rescored(path: Path, args) -> Path:
+    """A copy of a saved network model with the settings of ``args`` (to score it again)."""
     from vehicle_detection.classifier import load_model
 
-    m = load_model(path)
-    plan = dataclasses.replace(m.detector_config.plan, threshold=threshold)
-    out = path.with_name(f"{path.stem}_t{threshold:g}.npz")
-    m.replace(detector_config=m.detector_config.replace(plan=plan)).save(out, overwrite=True)
+    out = path.with_name(f"{path.stem}_t{args.threshold:g}{'_nosmall' if args.no_small else ''}{'_nolarge' if args.no_large else ''}.npz")
+    _settings(load_model(path), args).save(out, overwrite=True)
     return out
 
 

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-__all__ = ["ConvNet", "NET_FORMAT", "NET_INPUT"]
+__all__ = ["ConvNet", "NET_FORMAT", "NET_INPUT", "halve"]
 
 NET_FORMAT = "vehicle-detection-convnet-1"
 #: Side of a window as the network sees it: the 64-pixel patch halved.
@@ -152,16 +152,15 @@ class ConvNet:
         h, w = image.shape[:2]
         if h < 64 or w < 64:
             raise ValueError(f"the network needs at least one 64x64 window; got an image of {w}x{h}")
-        half = image[: h // 2 * 2, : w // 2 * 2].reshape(h // 2, 2, w // 2, 2, 3).mean(axis=(1, 3), dtype=np.float32)
-        return self._forward(half[None])[0, : h // 8 - 7, : w // 8 - 7]
+        return self._forward(halve(image)[None])[0, : h // 8 - 7, : w // 8 - 7]
 
     def scores(self, image: np.ndarray) -> np.ndarray:
         """:meth:`forward`, run by OpenCV's DNN module (one network per thread)."""
         h, w = image.shape[:2]
         if h < 64 or w < 64:
             raise ValueError(f"the network needs at least one 64x64 window; got an image of {w}x{h}")
-        half = image[: h // 2 * 2, : w // 2 * 2].reshape(h // 2, 2, w // 2, 2, 3).mean(axis=(1, 3), dtype=np.float32)
-        blob = np.ascontiguousarray((half * np.float32(1 / (255 * STD)) - np.float32(MEAN / STD)).transpose(2, 0, 1)[None])
+        # (x - 255 MEAN) / (255 STD), and HWC to NCHW, in one pass
+        blob = cv2.dnn.blobFromImage(halve(image), 1 / (255 * STD), mean=(255 * MEAN,) * 3)
         net = getattr(self._nets, "net", None)
         if net is None:
             net = self._nets.net = cv2.dnn.readNetFromONNX(np.frombuffer(self.onnx_bytes(), np.uint8))
@@ -204,7 +203,7 @@ class ConvNet:
         out = np.zeros((len(patches), N_OUT), np.float32)
         for start in range(0, len(patches), 512):
             chunk = patches[start : start + 512]
-            half = chunk.reshape(len(chunk), 32, 2, 32, 2, 3).mean(axis=(2, 4), dtype=np.float32)
+            half = np.stack([halve(p) for p in chunk])
             out[start : start + len(chunk)] = self._forward(half)[:, 0, 0]
         return out
 
@@ -220,6 +219,13 @@ class ConvNet:
             if pool:
                 x = _max_pool(x)
         return x
+
+
+def halve(image: np.ndarray) -> np.ndarray:
+    """An RGB ``uint8`` image at half resolution, as the network sees it: each output pixel the
+    rounded mean of a 2x2 block (OpenCV's area resize; a last odd row or column is dropped)."""
+    h, w = image.shape[:2]
+    return cv2.resize(image[: h // 2 * 2, : w // 2 * 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
 
 
 def _conv(x: np.ndarray, w: np.ndarray, b: np.ndarray, pad: int) -> np.ndarray:

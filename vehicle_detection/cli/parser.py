@@ -150,6 +150,13 @@ def _add_train(sub) -> None:
                    "JPEG artefacts) for other cameras and light; a copy is trained on only where its source patch is "
                    "(default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits and of the augmentation")
+    p.add_argument("--classifier", choices=("svm", "convnet"), default="svm",
+                   help="svm: HOG features and a linear SVM, with the box refinement (the default); convnet: also a small "
+                   "convolutional network that scores the windows and gives each its car's edges, trained on the patches "
+                   "and the --labels frames (needs the train-cnn extra: PyTorch)")
+    p.add_argument("--rounds", type=_positive_int, default=2, help="convnet: training rounds, each after the first with the "
+                   "previous round's hard negatives from the labelled frames (default %(default)s)")
+    p.add_argument("--epochs", type=_positive_int, default=6, help="convnet: epochs a round (default %(default)s)")
     _add_traffic(p, learned=True, default="right")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")

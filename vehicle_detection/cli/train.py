@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from ..classifier import DEFAULT_C
-from ..errors import OutputError
+from ..errors import InputError, OutputError
 from ..io import check_output_path
 from ..metrics.detection import load_annotations
 from ..training.augment import AugmentConfig
@@ -59,7 +59,17 @@ def run(args) -> int:
     augment = AugmentConfig(copies=args.augment)
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed, augment=augment)
     model = model.replace(detector_config=model.detector_config.replace(traffic=traffic))
-    if labels:
+    if args.classifier == "convnet":
+        from ..training.convnet import ConvNetTraining, with_convnet
+
+        if not labels:
+            raise InputError("--classifier convnet learns from labelled frames: pass --labels")
+        say_ = human_print(args)
+        say_(f"network: training on {len(ds)} patches and the labelled frames of {len(labels)} labels files "
+             f"({args.rounds} rounds of {args.epochs} epochs)")
+        model = with_convnet(model, ds, labels, ConvNetTraining(epochs=args.epochs, seed=args.seed), rounds=args.rounds,
+                             progress=not args.json)
+    elif labels:
         model = with_box_refinement(model, labels)
     extra = {}
     if args.extra_negatives:

@@ -26,14 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..convnet import N_OUT, STD, MEAN, ConvNet
+from ..convnet import MEAN, N_OUT, STD, ConvNet, halve
 from ..errors import require
 from ..geometry import box_iou
 from ..metrics.detection import Annotations
 from ..refine import crop_windows, edge_offsets, jittered_windows, working_frame
 from .mining import labelled_frames
 
-__all__ = ["FrameSamples", "ConvNetTraining", "frame_samples", "fit_convnet", "hard_windows", "network", "export", "samples_from"]
+__all__ = ["FrameSamples", "ConvNetTraining", "frame_samples", "fit_convnet", "hard_windows", "network", "export", "samples_from", "detector_settings", "with_convnet"]
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ class ConvNetTraining:
     learning_rate: float = 3e-3
     box_weight: float = 4.0
     per_car: int = 24
-    negatives_per_frame: int = 60
+    negatives_per_frame: int = 100
     seed: int = 0
     threads: int = 2
 
@@ -147,11 +147,14 @@ def frame_samples(annotations: Sequence[Annotations], config: ConvNetTraining, *
 def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_frame: int = 40, threshold: float = -1.0,
                  reference_height: int = 720) -> FrameSamples:
     """The background windows of labelled frames that ``net`` scores highest (above
-    ``threshold``, at most ``per_frame`` a frame), searched as the plan searches them."""
+    ``threshold``, at most ``per_frame`` a frame, no two overlapping by more than IoU 0.5),
+    searched at the plan's scales over the whole frame height."""
     from ..features import FeatureConfig
-    from ..search import _band, _band_windows
+    from ..search import SearchScale, _band, _band_windows
 
     cfg = FeatureConfig()
+    # every scale over the whole frame height: the training cameras' horizons differ
+    scales = [SearchScale(s.scale, 0, reference_height, step=s.step, aspect=s.aspect) for s in plan.scales]
     out = FrameSamples.empty()
     for ann in annotations:
         name = ann.camera or (ann.path.stem if ann.path else "labels")
@@ -160,8 +163,8 @@ def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_
             cars = np.asarray(labels.cars, np.float64).reshape(-1, 4) * f
             ignore = np.asarray(labels.ignore, np.float64).reshape(-1, 4) * f
             wins, scores = [], []
-            for s in plan.scales:
-                band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
+            for s in scales:
+                band = _band(work, s, cfg, plan.overhang_of(s))
                 if band is None:
                     continue
                 out_map = net.forward(band.image)[np.ix_(band.rows, band.cols)]
@@ -189,8 +192,37 @@ def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_
     return out
 
 
+#: The network model's window threshold (a logit: 2 is a probability of 0.88).
+THRESHOLD = 2.0
+#: The candidate horizons the cars are searched at where the road's lines give none: up to a
+#: fifth of the picture height (a phone high on the windscreen, a camera tilted down).
+CANDIDATES = (0.19, 0.27, 0.35, 0.43, 0.51, 0.59, 0.67)
+
+
+def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDATES, small: bool = True, large: bool = True):
+    """The detector settings of a network model, from the SVM model's (``base``, a
+    :class:`~vehicle_detection.config.DetectorConfig`).
+
+    The plan gains two scales the network scores cheaply: 48-pixel windows near the horizon
+    (``small``: cars about 30 pixels tall in a 540-row frame), and 384-pixel windows over the
+    lower half (``large``: cars half the frame height). The SVM's two-stage search does not
+    apply (the network scores a band in one pass).
+    """
+    from ..search import SearchScale
+
+    plan = base.plan
+    scales = list(plan.scales)
+    if small:
+        scales.insert(0, SearchScale(0.75, 396, 468, step=1))
+    if large:
+        scales.append(SearchScale(6.0, 336, 720, step=1))
+    plan = dataclasses.replace(plan, scales=tuple(scales), threshold=float(threshold), coarse_margin=None)
+    cars = dataclasses.replace(base.car_horizon, candidates=tuple(candidates), min_margin=float(threshold) + 1.0)
+    return base.replace(plan=plan, car_horizon=cars)
+
+
 def _halve(patches: np.ndarray) -> np.ndarray:
-    return patches.reshape(len(patches), 32, 2, 32, 2, 3).mean(axis=(2, 4), dtype=np.float32)
+    return np.stack([halve(p) for p in patches]).astype(np.float32) if len(patches) else np.zeros((0, 32, 32, 3), np.float32)
 
 
 def fit_convnet(
@@ -342,3 +374,47 @@ def samples_from(datasets: Iterable) -> FrameSamples:
     for d in datasets:
         out = out.concatenate(FrameSamples(d.images, d.labels.astype(np.int8), np.full((len(d), 4), np.nan, np.float32), d.sources))
     return out
+
+
+def with_convnet(model, patches, annotations: Sequence[Annotations], config: ConvNetTraining = ConvNetTraining(), *,
+                 rounds: int = 2, progress: bool = False):
+    """``model`` with a window-scoring network trained on ``patches`` and labelled frames.
+
+    Parameters
+    ----------
+    model : VehicleClassifier
+        The model the network joins (its SVM stays, unused by the search).
+    patches : Dataset
+        The archives' patches (and any extra negatives), without box targets.
+    annotations : sequence of Annotations
+        The training cameras' labelled frames: their cars' windows (with box targets) and
+        background windows (:func:`frame_samples`), and in each later round the windows the
+        previous round's network scores highest off every car (:func:`hard_windows`).
+    rounds : int
+        Training rounds (>= 1).
+
+    Returns
+    -------
+    VehicleClassifier
+        With ``convnet`` and the network's detector settings (:func:`detector_settings`); no
+        box refinement (the network gives each window's edges). ``metrics["convnet"]`` records
+        the fit.
+    """
+    if rounds < 1:
+        raise ValueError(f"rounds must be >= 1; got {rounds}")
+    t = time.perf_counter()
+    data = samples_from([patches]).concatenate(frame_samples(annotations, config))
+    record = {}
+    net, hard = None, 0
+    for r in range(rounds):
+        if r:
+            extra = hard_windows(net, annotations, model.detector_config.plan)
+            data = data.concatenate(extra)
+            hard += len(extra)
+            if progress:
+                print(f"round {r + 1}: {len(extra)} hard negatives", flush=True)
+        net, record = fit_convnet(data.patches, data.labels, data.offsets, config, progress=progress)
+    record.update(rounds=rounds, hard_negatives=hard, total_seconds=round(time.perf_counter() - t, 1),
+                  channels=list(config.channels), training_cameras=sorted({a.camera or "unnamed" for a in annotations}))
+    return model.replace(convnet=net, box_regressor=None, detector_config=detector_settings(model.detector_config),
+                         metrics={**model.metrics, "convnet": record})
