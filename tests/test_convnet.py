@@ -110,7 +110,7 @@ def test_search_scores_every_plan_window_with_the_network(frame720):
     found = search(frame720, model, plan)
     expected = []
     for s in plan.scales:
-        band = _band(frame720, s, model.config, plan.overhang_of(s), plan.y_shift)
+        band = _band(frame720, s, model.config, plan.overhang_of(s), plan.y_shift, plan.reach_bottom)
         if band is not None:
             expected.append(_band_windows(band, model.config, 1.0))
     windows = np.concatenate(expected)
@@ -194,3 +194,29 @@ def test_train_cli_builds_a_network_model_that_detect_runs(tmp_path, capsys):
     # without labelled frames there is nothing to learn the cars' edges from: one line, exit 3
     assert main(["train", "--data-dir", str(data), "--classifier", "convnet", "--model", str(tmp_path / "x.npz")]) == 3
     assert "--labels" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (533, 1280), (375, 1242), (352, 640), (540, 960)])
+@pytest.mark.parametrize("horizon", [None, 0.27, 0.45])
+def test_the_network_plan_covers_the_road_area_of_any_frame_shape(shape, horizon):
+    """4:3, 2.4:1, the wide stills of a driving benchmark, 640x352 and 960x540: windows over
+    every column and every row below the horizon, from a side of at most 36 pixels (cars about 30
+    pixels tall) to at least half the frame height."""
+    from vehicle_detection.search import plan_windows
+    from vehicle_detection.training.convnet import detector_settings
+
+    base = load_default_model()
+    dc = detector_settings(base.detector_config)
+    plan = dataclasses.replace(dc.plan, horizon=horizon)
+    h, w = shape
+    wins = np.concatenate([x for x in plan_windows(shape, plan, base.config) if len(x)])
+    sides = wins[:, 3] - wins[:, 1]
+    assert sides.min() <= 36 and sides.max() >= h / 2
+    cols = np.zeros(w, bool)
+    rows = np.zeros(h, bool)
+    for x1, y1, x2, y2 in wins:
+        cols[x1:x2] = True
+        rows[y1:y2] = True
+    assert cols.all()
+    top = round((plan.reference_horizon if horizon is None else horizon) * h)
+    assert rows[top:].all(), f"rows {np.flatnonzero(~rows[top:])[:5] + top} below the horizon are never searched"

@@ -190,6 +190,10 @@ class SearchPlan:
         border, exactly as the window's cropped patch gives it (the training patches have no
         pixels around them); about twice the work. Only the cells along a window's border
         differ between the two. Plans saved before this setting existed load with ``"crop"``.
+    reach_bottom : bool
+        With a horizon above the reference one, the bands move up; True keeps the bands that
+        reach the bottom of the reference frame reaching the frame's bottom (a camera that
+        sees the road ahead from higher up sees close cars there). False moves them up whole.
     """
 
     scales: tuple[SearchScale, ...] = field(default_factory=_default_scales)
@@ -205,6 +209,7 @@ class SearchPlan:
     track_margin: float = 0.5
     coarse_margin: float | None = 1.5
     window_border: str = "frame"
+    reach_bottom: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
@@ -220,6 +225,8 @@ class SearchPlan:
             object.__setattr__(self, "coarse_margin", float(c))
         if not 0.0 <= self.track_margin <= 10.0:
             raise ValueError(f"track_margin must be in [0, 10], got {self.track_margin}")
+        if not isinstance(self.reach_bottom, bool):
+            raise ValueError(f"reach_bottom must be True or False, got {self.reach_bottom!r}")
         if self.window_border not in ("frame", "crop"):
             raise ValueError(f"window_border must be 'frame' or 'crop', got {self.window_border!r}")
         if not self.scales:
@@ -261,6 +268,7 @@ class SearchPlan:
             "track_margin": self.track_margin,
             "coarse_margin": self.coarse_margin,
             "window_border": self.window_border,
+            "reach_bottom": self.reach_bottom,
         }
 
     @classmethod
@@ -275,7 +283,7 @@ class SearchPlan:
         try:
             required = {"scales", "threshold", "reference_height", "overhang", "horizon"}
             optional = {"full_search_every", "edge_width", "horizon_height", "track_margin", "reference_horizon",
-                        "overhang_min_scale", "coarse_margin", "window_border"}
+                        "overhang_min_scale", "coarse_margin", "window_border", "reach_bottom"}
             if not required <= set(d) <= required | optional:
                 raise ValueError(f"fields {sorted(d)}")
             schedule = {"overhang_min_scale": 0.0, "coarse_margin": None, "window_border": "crop",
@@ -317,10 +325,13 @@ def _working_frame(frame: np.ndarray, plan: SearchPlan) -> tuple[np.ndarray, flo
     return working_frame(frame, plan.reference_height)
 
 
-def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: float = 0.0, y_shift: int = 0) -> _Band | None:
+def _band(frame: np.ndarray, s: SearchScale, config: FeatureConfig, overhang: float = 0.0, y_shift: int = 0,
+          reach_bottom: bool = False) -> _Band | None:
     h, w = frame.shape[:2]
     x0, x1 = min(s.x_start, w), min(s.x_stop if s.x_stop is not None else w, w)
     y0, y1 = min(max(s.y_start + y_shift, 0), h), min(max(s.y_stop + y_shift, 0), h)
+    if reach_bottom and s.y_stop >= h:
+        y1 = h
     side = config.window
     if (x1 - x0) < side * s.scale * s.aspect or (y1 - y0) < side * s.scale:
         return None
@@ -405,7 +416,7 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
     dummy = np.zeros((plan.reference_height, max(1, round(w * f)), 3), np.uint8)
     out = []
     for s in plan.scales:
-        band = _band(dummy, s, config, plan.overhang_of(s), plan.y_shift)
+        band = _band(dummy, s, config, plan.overhang_of(s), plan.y_shift, plan.reach_bottom)
         out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f, frame_shape))
     return out
 
@@ -452,7 +463,7 @@ def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassif
     for k in np.unique(scale_index):
         if not 0 <= k < len(plan.scales):
             raise ValueError(f"scale_index {k} is not a scale of the plan ({len(plan.scales)} scales)")
-        band = _band(work, plan.scales[k], cfg, plan.overhang_of(plan.scales[k]), plan.y_shift)
+        band = _band(work, plan.scales[k], cfg, plan.overhang_of(plan.scales[k]), plan.y_shift, plan.reach_bottom)
         if band is None:
             raise ValueError(f"scale {k} of the plan searches no window in a {frame.shape[1]}x{frame.shape[0]} frame")
         boxes = _band_boxes(band, cfg, f, frame.shape)
@@ -1049,7 +1060,7 @@ def search(
     border = plan.window_border == "frame"
     boxes, scores, scales, windows, products = [], [], [], [], []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
+        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift, plan.reach_bottom)
         if band is None:
             continue
         if around is None:
@@ -1086,7 +1097,7 @@ def _search_convnet(frame: np.ndarray, work: np.ndarray, f: float, model: Vehicl
     cfg = model.config
     boxes, scores, scales, windows, offsets = [], [], [], [], []
     for k, s in enumerate(plan.scales):
-        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift)
+        band = _band(work, s, cfg, plan.overhang_of(s), plan.y_shift, plan.reach_bottom)
         if band is None:
             continue
         out = model.convnet.scores(band.image)[np.ix_(band.rows, band.cols)].reshape(-1, 5)

@@ -206,7 +206,8 @@ def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDAT
     The plan gains two scales the network scores cheaply: 48-pixel windows near the horizon
     (``small``: cars about 30 pixels tall in a 540-row frame), and 384-pixel windows over the
     lower half (``large``: cars half the frame height). The SVM's two-stage search does not
-    apply (the network scores a band in one pass).
+    apply (the network scores a band in one pass). Bands that reach the frame's bottom keep
+    reaching it when a high horizon moves the bands up (:attr:`SearchPlan.reach_bottom`).
     """
     from ..search import SearchScale
 
@@ -216,7 +217,7 @@ def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDAT
         scales.insert(0, SearchScale(0.75, 396, 468, step=1))
     if large:
         scales.append(SearchScale(6.0, 336, 720, step=1))
-    plan = dataclasses.replace(plan, scales=tuple(scales), threshold=float(threshold), coarse_margin=None)
+    plan = dataclasses.replace(plan, scales=tuple(scales), threshold=float(threshold), coarse_margin=None, reach_bottom=True)
     cars = dataclasses.replace(base.car_horizon, candidates=tuple(candidates), min_margin=float(threshold) + 1.0)
     return base.replace(plan=plan, car_horizon=cars)
 
