@@ -220,3 +220,25 @@ def test_the_network_plan_covers_the_road_area_of_any_frame_shape(shape, horizon
     assert cols.all()
     top = round((plan.reference_horizon if horizon is None else horizon) * h)
     assert rows[top:].all(), f"rows {np.flatnonzero(~rows[top:])[:5] + top} below the horizon are never searched"
+
+
+def test_augmented_edge_offsets_follow_the_picture():
+    """The zoom, shift and mirror of training move a patch's car and its edge offsets alike: a
+    dark box drawn where the offsets say lies where the augmented picture has it."""
+    torch = pytest.importorskip("torch", reason="training the network needs PyTorch (the train-cnn extra)")
+    from vehicle_detection.training.convnet import _augment
+
+    rng = np.random.default_rng(7)
+    b = 64
+    x = torch.full((b, 3, 32, 32), 200.0)
+    box = (8, 10, 24, 26)  # x1, y1, x2, y2 in pixels of the 32x32 window
+    x[:, :, box[1] : box[3], box[0] : box[2]] = 10.0
+    t = torch.tensor([[box[0] / 32, box[1] / 32, box[2] / 32 - 1, box[3] / 32 - 1]] * b)
+    # the light changes too, but the box stays the darkest part of each patch
+    out, t2 = _augment(torch, x.clone(), t.clone(), rng, blur=0.0)
+    for img, off in zip(out, t2.numpy()):
+        dark = (img.mean(dim=0) < img.mean()).numpy()
+        ys, xs = np.nonzero(dark)
+        got = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]) / 32
+        want = np.array([off[0], off[1], off[2] + 1, off[3] + 1])
+        np.testing.assert_allclose(got, want, atol=1.6 / 32)

@@ -318,13 +318,32 @@ def network(channels=(16, 32, 32, 32)):
     )
 
 
-def _augment(torch, x, t, rng):
-    """Random mirror and light for a batch ``(B, 3, 32, 32)`` of 0..255 pixels; the mirrored
-    patches' edge offsets swap sides."""
+def _augment(torch, x, t, rng, *, zoom: float = 0.12, shift: float = 0.08, blur: float = 0.3):
+    """Random mirror, zoom, shift, blur and light for a batch ``(B, 3, 32, 32)`` of 0..255
+    pixels; the edge offsets ``t`` (B, 4) follow the mirror, zoom and shift."""
     b = x.shape[0]
     flip = torch.from_numpy(rng.random(b) < 0.5)
     x[flip] = x[flip].flip(3)
     t[flip] = torch.stack([-t[flip][:, 2], t[flip][:, 1], -t[flip][:, 0], t[flip][:, 3]], dim=1)
+    if zoom or shift:
+        # content scaled by z about the window's centre and moved by (dx, dy) window sides
+        z = np.exp(rng.uniform(-zoom, zoom, b)).astype(np.float32)
+        d = rng.uniform(-shift, shift, (b, 2)).astype(np.float32)
+        theta = np.zeros((b, 2, 3), np.float32)
+        theta[:, 0, 0] = theta[:, 1, 1] = 1 / z
+        theta[:, :, 2] = -2 * d / z[:, None]
+        grid = torch.nn.functional.affine_grid(torch.from_numpy(theta), list(x.shape), align_corners=False)
+        x = torch.nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="reflection", align_corners=False)
+        zt, dt = torch.from_numpy(z)[:, None], torch.from_numpy(d)
+        lo = (t[:, :2] - 0.5) * zt + 0.5 + dt  # left, top edges in window units
+        hi = (t[:, 2:] + 0.5) * zt + 0.5 + dt  # right, bottom edges
+        t = torch.cat([lo, hi - 1.0], dim=1)
+    if blur:
+        k = torch.tensor([0.25, 0.5, 0.25])
+        kernel = (k[:, None] * k[None, :]).expand(3, 1, 3, 3)
+        soft = torch.from_numpy(rng.random(b) < blur)
+        if soft.any():
+            x[soft] = torch.nn.functional.conv2d(torch.nn.functional.pad(x[soft], (1, 1, 1, 1), mode="replicate"), kernel, groups=3)
     x = x / 255.0
     grey = x.mean(dim=1, keepdim=True)
     sat = torch.from_numpy(rng.uniform(0.3, 1.6, (b, 1, 1, 1)).astype(np.float32))
