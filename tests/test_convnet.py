@@ -242,3 +242,31 @@ def test_augmented_edge_offsets_follow_the_picture():
         got = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]) / 32
         want = np.array([off[0], off[1], off[2] + 1, off[3] + 1])
         np.testing.assert_allclose(got, want, atol=1.6 / 32)
+
+
+def test_a_car_60_pixels_tall_in_a_wide_still_is_found_with_a_fitting_box():
+    """A 1242x375 still (the wide stills of a public driving benchmark): test1 scaled so that its
+    black car is 60 pixels tall, cut to 375 rows with the horizon where the plan has it, and
+    widened to 1242 columns with mirrored edges. The shipped network model boxes the car."""
+    import cv2
+
+    from vehicle_detection import Detector
+    from vehicle_detection.classifier import load_model
+    from vehicle_detection.geometry import box_iou
+    from vehicle_detection.io.images import read_image
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    image = read_image(root / "test_images" / "test1.jpg")
+    car = np.array([817, 411, 942, 493], np.float64)  # dev_set/test_images.json
+    f = 60 / (car[3] - car[1])
+    small = cv2.resize(image, (round(1280 * f), round(720 * f)), interpolation=cv2.INTER_AREA)
+    top = round(0.583 * small.shape[0] - 0.583 * 375)
+    pad = (1242 - small.shape[1]) // 2
+    still = cv2.copyMakeBorder(small[top : top + 375], 0, 0, pad, 1242 - small.shape[1] - pad, cv2.BORDER_REFLECT_101)
+    assert still.shape == (375, 1242, 3)
+    want = car * f + [pad, -top, pad, -top]
+    assert 59 <= want[3] - want[1] <= 61
+    found = Detector(load_model("convnet")).detect_image(still)
+    assert len(found), "no vehicle found"
+    iou = box_iou(found.xyxy, want[None])[:, 0]
+    assert iou.max() >= 0.7, f"best box {found.xyxy[iou.argmax()].tolist()} against {want.round().tolist()}: IoU {iou.max():.2f}"

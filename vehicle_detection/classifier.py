@@ -43,6 +43,8 @@ __all__ = [
     "default_model_path",
     "load_model",
     "load_default_model",
+    "SHIPPED_MODELS",
+    "shipped_model_path",
 ]
 
 MODEL_FORMAT = "vehicle-detection-model"
@@ -288,7 +290,8 @@ class VehicleClassifier:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> VehicleClassifier:
-        """Read and check a model file.
+        """Read and check a model file, or a model shipped in the package by its name
+        (:data:`SHIPPED_MODELS`: ``"svm"``, ``"convnet"``) where no file of that name exists.
 
         A model file of format version 1 (library 0.1, which saved no detector settings) is
         migrated: it gets the settings that library ran every model with.
@@ -301,7 +304,7 @@ class VehicleClassifier:
             library; arrays whose shapes do not fit the configuration. The message names the
             file and the problem.
         """
-        path = Path(path)
+        path = shipped_model_path(path)
         input_file(path, "model file", ModelError)
         data = _read_npz(path)
         meta_arr = data["meta"]
@@ -436,13 +439,28 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
         raise ModelError(f"{path}: unreadable model file (truncated, corrupt or not an .npz): {exc}") from None
 
 
+#: The models shipped in the package, by name (``load_model("convnet")``, ``--model convnet``):
+#: ``svm``, the seeds' HOG features and linear SVM with the box refinement (the default), and
+#: ``convnet``, the same with a window-scoring network (:mod:`~vehicle_detection.convnet`).
+SHIPPED_MODELS = {"svm": "default.npz", "convnet": "convnet.npz"}
+
+
+def shipped_model_path(path: str | os.PathLike) -> Path:
+    """``path``, or the package's model of that name (:data:`SHIPPED_MODELS`) where ``path`` is
+    one of those names and no such file exists."""
+    if isinstance(path, str) and path in SHIPPED_MODELS and not Path(path).exists():
+        return Path(str(resources.files("vehicle_detection") / "models" / SHIPPED_MODELS[path]))
+    return Path(path)
+
+
 def default_model_path() -> Path:
     """Path of the model shipped inside the package."""
     return Path(str(resources.files("vehicle_detection") / "models" / "default.npz"))
 
 
 def load_model(path: str | os.PathLike | None = None) -> VehicleClassifier:
-    """A model file (see :meth:`VehicleClassifier.load`), or the embedded default model for None."""
+    """A model file or a shipped model's name (see :meth:`VehicleClassifier.load`), or the
+    embedded default model for None."""
     return VehicleClassifier.load(default_model_path() if path is None else path)
 
 
