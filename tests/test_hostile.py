@@ -1809,3 +1809,52 @@ def test_sigint_with_a_scheduler_is_130_and_leaves_whole_outputs_or_none(tmp_pat
         time.sleep(0.1)
     assert partials(out) == []
     assert sorted(p.name for p in out.iterdir()) in ([], ["long_boxes.csv", "long_detected.mp4"])
+
+
+# --- issue 45: formula injection, huge arrays, absurd gains ------------------------------------
+
+
+@pytest.mark.parametrize("name", ["=cmd|calc!A0.jpg", "+1.jpg", "-2.jpg", "@sum.jpg", "\tx.jpg", "\rx.jpg", "'quoted.jpg", "plain.jpg"])
+def test_boxes_csv_cells_that_would_start_a_formula_are_written_as_text(tmp_path, name):
+    from vehicle_detection.detections import Detections
+    from vehicle_detection.io.tables import write_boxes_csv
+
+    path = tmp_path / "boxes.csv"
+    write_boxes_csv(path, Detections([[1, 2, 30, 40]], score=[0.5], frame=[0]), files=[name])
+    raw = path.read_bytes().decode("utf-8")
+    cell = raw.split("\n", 1)[1].split(",", 7)[-1].rstrip("\n").strip('"')
+    assert not cell.startswith(("=", "+", "-", "@", "\t", "\r")), repr(cell)
+    assert cell.startswith("'") == (name[0] in "=+-@\t\r'")
+    # the reader takes it back unchanged (a carriage return inside a name comes back as a line
+    # feed: the reader reads text with universal newlines)
+    assert read_boxes_csv(path).data["file"].tolist() == [name.replace("\r", "\n")]
+
+
+def test_detect_on_a_folder_with_a_formula_file_name_writes_it_as_text(tmp_path):
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    shutil.copy(REPO / "test_images" / "test3.jpg", folder / "=cmd|calc!A0.jpg")
+    out = tmp_path / "out"
+    assert main(["detect", str(folder), "--out", str(out), "--no-progress"]) == 0
+    text = (out / "boxes.csv").read_text(encoding="utf-8")
+    assert ",=cmd" not in text and ",'=cmd|calc!A0.jpg" in text
+    assert set(read_boxes_csv(out / "boxes.csv").data["file"].tolist()) == {"=cmd|calc!A0.jpg"}
+
+
+def test_an_image_larger_than_the_limit_is_refused_before_any_copy():
+    from vehicle_detection import Detector
+    from vehicle_detection.io.images import MAX_IMAGE_PIXELS
+
+    huge = np.broadcast_to(np.zeros(3, np.uint8), (100_000, 100_000, 3))
+    with pytest.raises(ValueError, match="larger than"):
+        Detector.load().detect_image(huge)
+    assert 100_000 * 100_000 > MAX_IMAGE_PIXELS
+
+
+@pytest.mark.parametrize("gain", [float("nan"), -1, 0, float("inf"), 1e6, True, "2"])
+def test_with_gain_refuses_what_no_search_can_use(gain):
+    from vehicle_detection import Detector
+
+    with pytest.raises(ValueError, match="gain"):
+        Detector.load().with_gain(gain)
+    assert Detector.load().with_gain(2.5)._gain == 2.5

@@ -74,6 +74,11 @@ def _footage_overlays(first: list) -> Overlays | None:
     return find_overlays(good) if good else None
 
 
+#: Largest gain :meth:`Detector.with_gain` takes (the exposure rule's own gains are at most its
+#: ``max_gain``, 4 by default).
+MAX_GAIN = 64.0
+
+
 class Detector:
     """Vehicle detector over images and videos.
 
@@ -147,6 +152,8 @@ class Detector:
         :mod:`~vehicle_detection.exposure`; None: as configured, each frame by its own measure)."""
         if gain is None:
             return self
+        if isinstance(gain, bool) or not isinstance(gain, (int, float, np.integer, np.floating)) or not 0 < gain <= MAX_GAIN:
+            raise ValueError(f"gain must be a number in (0, {MAX_GAIN:g}] or None; got {gain!r}")
         out = copy.copy(self)
         out._gain = float(gain)
         return out

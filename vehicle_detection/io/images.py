@@ -315,9 +315,12 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     Raises
     ------
     InputError
-        Float, bool or signed arrays, wrong number of dimensions or channels, or empty images.
+        Float, bool or signed arrays, wrong number of dimensions or channels, empty images, or
+        images of more than ``MAX_IMAGE_PIXELS`` (100 million) pixels.
     """
     arr = np.asarray(image)
+    if arr.ndim >= 2 and arr.shape[0] * arr.shape[1] > MAX_IMAGE_PIXELS:  # before any copy
+        raise InputError(f"{name}: image of {arr.shape[1]}x{arr.shape[0]} pixels is larger than {MAX_IMAGE_PIXELS:,} pixels")
     if arr.dtype == np.uint16:
         arr = np.rint(arr.astype(np.float32) / 257.0).astype(np.uint8)
     elif arr.dtype != np.uint8:

@@ -109,7 +109,7 @@ def write_boxes_csv(
     for i, (frame, x1, y1, x2, y2, track_id, score) in enumerate(detections.rows()):
         line = f"{frame},{x1},{y1},{x2},{y2},{track_id},{_format_score(score)}"
         line += "".join("," + (f"{col[i]:.2f}" if np.isfinite(col[i]) else "") for col in extra)
-        lines.append(line if names is None else f"{line},{_quote(names[i])}")
+        lines.append(line if names is None else f"{line},{_quote(as_text_cell(names[i]))}")
     text = "\n".join(lines) + "\n"
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")
@@ -121,6 +121,29 @@ def _header(distances: bool, files: bool) -> str:
 
 
 _HEADERS = {_header(d, f): (d, f) for d in (False, True) for f in (False, True)}
+
+
+#: First characters that make a spreadsheet read a cell as a formula (the OWASP list), and the
+#: apostrophe that marks a cell written as text.
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "'")
+
+
+def as_text_cell(text: str) -> str:
+    """A text cell a spreadsheet shows as text: an apostrophe before a first character that
+    would start a formula (``=``, ``+``, ``-``, ``@``, tab, carriage return) or before a first
+    apostrophe; :func:`from_text_cell` takes it back off.
+
+    >>> as_text_cell("=cmd|calc!A0.jpg"), from_text_cell(as_text_cell("=cmd|calc!A0.jpg"))
+    ("'=cmd|calc!A0.jpg", '=cmd|calc!A0.jpg')
+    >>> as_text_cell("test1.jpg")
+    'test1.jpg'
+    """
+    return "'" + text if text.startswith(_FORMULA_START) else text
+
+
+def from_text_cell(text: str) -> str:
+    """The inverse of :func:`as_text_cell`."""
+    return text[1:] if text.startswith("'") else text
 
 
 def _quote(text: str) -> str:
@@ -224,7 +247,7 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
         if distances:
             extra.append(_parse_extra(fields[len(_COLUMNS) : len(_COLUMNS) + len(DISTANCE_COLUMNS)], lineno, path))
         if files:
-            names.append(fields[-1])
+            names.append(from_text_cell(fields[-1]))
     table = Detections.from_rows(rows)
     if not rows:
         return table
