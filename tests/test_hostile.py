@@ -1858,3 +1858,56 @@ def test_with_gain_refuses_what_no_search_can_use(gain):
     with pytest.raises(ValueError, match="gain"):
         Detector.load().with_gain(gain)
     assert Detector.load().with_gain(2.5)._gain == 2.5
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["detect", "VIDEO", "--frames", "0-99999999999999999999"], "beyond any video"),
+    (["detect", "VIDEO", "--end", "99999999999999999999"], "beyond any video"),
+    (["calibrate", "CAL", "--pattern", "2x2"], "--pattern"),
+    (["calibrate", "CAL", "--pattern", "30000x2"], "--pattern"),
+    (["calibrate", "CAL", "--pattern", "100000x100000"], "--pattern"),
+    (["mine-negatives", "VIDEO", "--negative-region", "0,0,99999999999999999999,10", "--out", "NEG"], "--negative-region"),
+    (["mine-negatives", "VIDEO", "--negative-region", "0,0,10,10", "--threshold", "nan", "--out", "NEG"], "finite"),
+])
+def test_impossible_numbers_are_usage_errors(tmp_path, capsys, argv, words):
+    """Issue 45, 9: exit 2 and one line, where these ended in an internal error (exit 1)."""
+    subst = {"VIDEO": str(REPO / "test_video.mp4"), "CAL": str(tmp_path), "NEG": str(tmp_path / "neg")}
+    with pytest.raises(SystemExit) as exc:  # argparse's own refusals exit from inside main
+        code = main([subst.get(a, a) for a in argv])
+        raise SystemExit(code)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1 and len(err) < 300
+    assert not (tmp_path / "neg").exists()
+
+
+def test_process_video_refuses_a_frame_range_beyond_any_video(tmp_path):
+    import vehicle_detection as vd
+
+    with pytest.raises(ValueError, match="beyond any video"):
+        vd.process_video(REPO / "test_video.mp4", tmp_path / "o.mp4", frames=(0, 10**30))
+    assert not (tmp_path / "o.mp4").exists()
+
+
+def test_mine_negatives_frames_far_beyond_the_video_cost_no_memory():
+    """Issue 45, 5: ``--frames 0-50000000`` is held as ranges, never listed frame by frame."""
+    import tracemalloc
+
+    from vehicle_detection.cli.mine_negatives import _frame_ranges
+    from vehicle_detection.training.mining import MiningOptions
+
+    tracemalloc.start()
+    opts = MiningOptions(frames=_frame_ranges("0-50000000,60000000-60000005"))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 1 << 20
+    assert 49_999_999 in opts.frames and 50_000_001 not in opts.frames and 60_000_003 in opts.frames
+    assert opts.searches(3) and not opts.searches(50_000_001)
+
+
+def test_shorten_cuts_long_values_for_messages():
+    from vehicle_detection.errors import shorten
+
+    text = shorten(10**400)
+    assert len(text) < 70 and text.endswith("(401 characters)")
+    assert shorten("9x6") == "9x6"

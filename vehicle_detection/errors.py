@@ -126,3 +126,18 @@ def require(module: str, extra: str, feature: str) -> ModuleType:
         raise MissingDependencyError(
             f"{feature} needs {package}, which is not installed: pip install \"vehicle-detection[{extra}]\""
         ) from None
+
+
+def shorten(value, limit: int = 40) -> str:
+    """``value`` as text for a one-line message: at most about ``limit`` characters, its start
+    and end kept (a 400-digit number or a 10 MB CSV field must not fill the terminal).
+
+    >>> shorten(10**50)
+    '1000000000000000000000000...0000000000 (51 characters)'
+    >>> shorten("9x6")
+    '9x6'
+    """
+    text = str(value)
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit * 5 // 8]}...{text[-limit // 4:]} ({len(text)} characters)"

@@ -6,7 +6,7 @@ import json
 import time
 from pathlib import Path
 
-from ..errors import InputError, UsageError
+from ..errors import InputError, UsageError, shorten
 from ..io import check_output_path
 from ..io.images import list_images, read_image
 from ..road.camera import calibrate
@@ -15,14 +15,17 @@ from .options import human_print
 
 __all__ = ["run"]
 
+#: Most inner corners a chessboard row or column may have (OpenCV needs at least 3).
+MAX_CORNERS = 100
+
 
 def run(args) -> int:
     try:
         cols, rows = (int(v) for v in args.pattern.lower().split("x"))
-        if cols < 2 or rows < 2:
+        if not (3 <= cols <= MAX_CORNERS and 3 <= rows <= MAX_CORNERS):
             raise ValueError
     except ValueError:
-        raise UsageError(f"--pattern: expected inner corners like 9x6, got {args.pattern!r}") from None
+        raise UsageError(f"--pattern: expected inner corners like 9x6, each 3 to {MAX_CORNERS}, got {shorten(args.pattern)!r}") from None
     folder = Path(args.dir)
     if not folder.is_dir():
         raise InputError(f"{folder}: no such folder of chessboard photos")

@@ -24,14 +24,16 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from ..errors import InputError, UsageError, require
+from ..errors import InputError, UsageError, require, shorten
 from ..io import Encoding
+from ..io.video import MAX_FRAME
 from ..pipeline.batch import SCHEDULER_TIMEOUT, detect_many
 from ..pipeline.inputs import (
     VIDEO_EXTENSIONS, InputOptions, InputResult, default_outputs, expand_inputs, input_kind, run_input, unknown_type,
 )
 from ..road.survey import Road
 from .options import load_camera, load_detector
+
 
 __all__ = ["run", "SOME_FAILED"]
 
@@ -75,12 +77,16 @@ def _frames(args) -> tuple[int, int | None] | None:
             raise UsageError(f"--frames: expected A-B (inclusive decoded frame indexes), got {args.frames!r}") from None
         if not sep or a < 0 or b < a:
             raise UsageError(f"--frames: expected A-B with 0 <= A <= B, got {args.frames!r}")
+        if b > MAX_FRAME:
+            raise UsageError(f"--frames: frame {shorten(b)} is beyond any video (frame indexes are at most {MAX_FRAME})")
         return a, b + 1
     if args.start is None and args.end is None:
         return None
     a = 0 if args.start is None else args.start
     if a < 0 or (args.end is not None and args.end <= a):
-        raise UsageError(f"--start {a} --end {args.end}: expected 0 <= start < end")
+        raise UsageError(f"--start {shorten(a)} --end {shorten(args.end)}: expected 0 <= start < end")
+    if max(a, args.end or 0) > MAX_FRAME + 1:
+        raise UsageError(f"--start {shorten(a)} --end {shorten(args.end)}: beyond any video (frame indexes are at most {MAX_FRAME})")
     return a, args.end
 
 

@@ -9,18 +9,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, OutputError, UsageError
+from ..errors import InputError, OutputError, UsageError, shorten
+from ..geometry import MAX_COORD
 from ..io import refuse_inputs
+from ..io.video import MAX_FRAME
 from ..metrics.detection import load_annotations
-from ..training.mining import MiningOptions, MiningSource, mine_negatives, write_negatives
+from ..training.mining import FrameRanges, MiningOptions, MiningSource, mine_negatives, write_negatives
 from .options import human_print, load_detector
+
 
 __all__ = ["run"]
 
 
-def _frame_ranges(text: str) -> set[int]:
-    """``"0-89,160-250,300"`` -> the frame indexes (inclusive ranges)."""
-    out: set[int] = set()
+def _frame_ranges(text: str) -> FrameRanges:
+    """``"0-89,160-250,300"`` -> the frame indexes (inclusive ranges), never listed one by one."""
+    out = []
     for part in text.split(","):
         part = part.strip()
         if not part:
@@ -29,13 +32,15 @@ def _frame_ranges(text: str) -> set[int]:
         try:
             a, b = int(lo), int(hi) if sep else int(lo)
         except ValueError:
-            raise UsageError(f"--frames: expected ranges like 0-89,160-250, got {text!r}") from None
+            raise UsageError(f"--frames: expected ranges like 0-89,160-250, got {shorten(text)!r}") from None
         if a < 0 or b < a:
-            raise UsageError(f"--frames: {part!r} is not a range of frame indexes (first <= last, both >= 0)")
-        out.update(range(a, b + 1))
+            raise UsageError(f"--frames: {shorten(part)!r} is not a range of frame indexes (first <= last, both >= 0)")
+        if b > MAX_FRAME:
+            raise UsageError(f"--frames: frame {shorten(b)} is beyond any video (frame indexes are at most {MAX_FRAME})")
+        out.append((a, b))
     if not out:
-        raise UsageError(f"--frames: no frames in {text!r}")
-    return out
+        raise UsageError(f"--frames: no frames in {shorten(text)!r}")
+    return FrameRanges(tuple(out))
 
 
 def _regions(texts: list[str]):
@@ -45,8 +50,8 @@ def _regions(texts: list[str]):
             box = [int(v) for v in text.split(",")]
         except ValueError:
             box = []
-        if len(box) != 4 or box[2] <= box[0] or box[3] <= box[1] or min(box) < 0:
-            raise UsageError(f"--negative-region: expected X1,Y1,X2,Y2 whole pixels with X2 > X1 and Y2 > Y1, got {text!r}")
+        if len(box) != 4 or box[2] <= box[0] or box[3] <= box[1] or min(box) < 0 or max(box) > MAX_COORD:
+            raise UsageError(f"--negative-region: expected X1,Y1,X2,Y2 whole pixels (at most {MAX_COORD}) with X2 > X1 and Y2 > Y1, got {shorten(text)!r}")
         boxes.append(box)
     return np.array(boxes, dtype=np.int64).reshape(-1, 4) if boxes else None
 

@@ -6,6 +6,7 @@ Usage errors are one line like every other error (``vehicle-detection: error: ..
 from __future__ import annotations
 
 import argparse
+import math
 
 from .. import __version__
 from ..config import TRAFFIC
@@ -62,6 +63,16 @@ def _horizon(text: str) -> float | str:
         return _fraction(text)
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), 'auto' or 'plan', got {text!r}") from None
+
+
+def _finite_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text[:40]!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text[:40]!r}")
+    return value
 
 
 def _positive_float(text: str) -> float:
@@ -371,7 +382,7 @@ def _add_mine_negatives(sub) -> None:
     p.add_argument("--frames", default=None, metavar="RANGES",
                    help="only these frame indexes, e.g. 0-89,160-250 (inclusive; default all)")
     p.add_argument("--every", type=_positive_int, default=1, metavar="K", help="search every K-th frame (default %(default)s)")
-    p.add_argument("--threshold", type=float, default=None,
+    p.add_argument("--threshold", type=_finite_float, default=None,
                    help="SVM margin above which a window is taken (default: the model's search threshold; -1 also takes "
                    "the negatives inside the SVM margin)")
     p.add_argument("--negative-region", action="append", default=[], metavar="X1,Y1,X2,Y2",

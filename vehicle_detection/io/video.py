@@ -78,6 +78,10 @@ from ..errors import InputError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
 
+#: Largest decoded frame index anything here takes (a video of 2**31 frames runs for over two
+#: years at 30 frames a second).
+MAX_FRAME = 2**31 - 1
+
 X264_PRESETS = (
     "ultrafast",
     "superfast",

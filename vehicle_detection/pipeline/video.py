@@ -22,11 +22,11 @@ import numpy as np
 from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import Detector
-from ..errors import InputError, UsageError
+from ..errors import InputError, UsageError, shorten
 from ..io import check_outputs, output_batch, progress_bar, write_tables
 from ..io.images import check_frame_shape
 from ..io.timeline import Timeline, timing
-from ..io.video import Encoding, VideoWriter, probe_video, read_frames
+from ..io.video import MAX_FRAME, Encoding, VideoWriter, probe_video, read_frames
 from ..road.survey import Road, RoadSurvey
 from ..tracker import Tracker, TrackerState
 from ..viz.drawing import draw_detections
@@ -53,11 +53,14 @@ def frame_range(frames: range | tuple[int | None, int | None] | None) -> tuple[i
     if isinstance(frames, range):
         if frames.step != 1:
             raise UsageError("frames: a range with step 1")
-        return frames.start, frames.stop
-    start, end = frames
+        start, end = frames.start, frames.stop
+    else:
+        start, end = frames
     start = 0 if start is None else int(start)
     if start < 0 or (end is not None and int(end) < start):
         raise UsageError(f"frames: ({start}, {end}) is not a range of frame indexes (0 <= start <= end)")
+    if max(start, 0 if end is None else int(end)) > MAX_FRAME + 1:
+        raise UsageError(f"frames: ({shorten(start)}, {shorten(end)}) reaches beyond any video (frame indexes are at most {MAX_FRAME})")
     return start, None if end is None else int(end)
 
 

@@ -68,6 +68,7 @@ __all__ = [
     "labelled_dataset",
     "MiningSource",
     "MiningOptions",
+    "FrameRanges",
     "MinedNegatives",
     "labels_at",
     "negative_mask",
@@ -360,6 +361,24 @@ def _input_name(path: Path) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "input"
 
 
+class FrameRanges:
+    """Inclusive ranges of frame indexes, ``((first, last), ...)``: ``index in ranges`` is
+    answered without listing the frames (``--frames 0-50000000`` on a short video costs nothing)."""
+
+    def __init__(self, ranges):
+        self.ranges = tuple((int(a), int(b)) for a, b in ranges)
+
+    def __contains__(self, index) -> bool:
+        return any(a <= index <= b for a, b in self.ranges)
+
+    def __iter__(self):
+        for a, b in self.ranges:
+            yield from range(a, b + 1)
+
+    def __repr__(self) -> str:
+        return f"FrameRanges({self.ranges})"
+
+
 @dataclass(frozen=True)
 class MiningOptions:
     """Which frames are searched, which hot windows are taken as negatives, and which are dropped as
@@ -405,7 +424,7 @@ class MiningOptions:
             raise ValueError(f"every must be a whole number >= 1; got {every!r}")
         if self.max_gap < 0 or self.dedupe_frames < 0:
             raise ValueError("max_gap and dedupe_frames must be >= 0")
-        if self.frames is not None:
+        if self.frames is not None and not isinstance(self.frames, FrameRanges):
             object.__setattr__(self, "frames", frozenset(int(f) for f in self.frames))
         if self.negative_regions is not None:
             regions = np.asarray(self.negative_regions, dtype=np.int64).reshape(-1, 4)
