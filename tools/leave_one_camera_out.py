@@ -108,11 +108,22 @@ def _settings(model, args):
 
 
 def build_svm(train_cams: list[str], out: Path, *, without_extras: bool, args) -> dict:
+    """The seeds' model as ``vehicle-detection train --labels`` builds it: HOG + linear SVM on the
+    archives and the training cameras' cars, with the box refinement fitted on their frames (no
+    mined negatives: the embedded model's rebuild adds two rounds of them)."""
+    from vehicle_detection.classifier import load_default_model
+    from vehicle_detection.metrics.detection import load_annotations
+    from vehicle_detection.training.data import load_dataset
+    from vehicle_detection.training.fit import train, with_box_refinement
+    from vehicle_detection.training.mining import labelled_dataset
+
+    archives = load_dataset(args.data_dir)
     if without_extras:
-        raise SystemExit("--classifier svm cannot leave out the archives' project-camera negatives yet")
-    labels = [str(f) for f in training_labels(train_cams)]
-    cmd = ["vehicle-detection", "train", "--data-dir", args.data_dir, "--labels", *labels, "--model", str(out), "--overwrite", "--json"]
-    subprocess.run(cmd, check=True, capture_output=True)
+        archives = archives.subset(archives.sources != "non-vehicles/Extras")
+    anns = [load_annotations(f) for f in training_labels(train_cams)]
+    model = train(archives.concatenate(labelled_dataset(anns)), load_default_model().config, evaluate=False)
+    model = with_box_refinement(model, anns)
+    model.save(out, overwrite=True)
     return {}
 
 
@@ -143,7 +154,7 @@ def main(argv=None) -> int:
         model = work / f"{args.classifier}_without_{cam}.npz"
         t = time.perf_counter()
         if args.reuse and model.exists():
-            model = _rescored(model, args)
+            model = _rescored(model, args) if args.classifier == "cnn" else model
         else:
             print(f"{cam}: training without it on {train_cams}", flush=True)
             build(train_cams, model, without_extras=without_extras, args=args)
@@ -152,7 +163,9 @@ def main(argv=None) -> int:
         print(f"{cam}: {_fmt(pooled)} ({time.perf_counter() - t:.0f} s)", flush=True)
     if args.all:
         model = work / f"{args.classifier}_all.npz"
-        if not (args.reuse and model.exists()):
+        if args.reuse and model.exists():
+            model = _rescored(model, args) if args.classifier == "cnn" else model
+        else:
             build(everyone, model, without_extras=False, args=args)
         for cam in everyone:
             if CAMERAS[cam][2]:
