@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from ..classifier import DEFAULT_C
-from ..errors import InputError, OutputError
+from ..errors import InputError, OutputError, require
 from ..io import check_output_path
 from ..metrics.detection import load_annotations
 from ..training.augment import AugmentConfig
@@ -45,16 +45,19 @@ def _train_report(model) -> dict:
 
 def run(args) -> int:
     config = feature_config(args)
+    if args.classifier == "convnet":
+        if not args.labels:
+            raise InputError("--classifier convnet learns the cars' edges from labelled frames: pass --labels")
+        require("torch", "train-cnn", "train --classifier convnet")
     root = default_data_dir(args.data_dir)
     if args.model is not None:
         _check_model_output(args.model, root, overwrite=args.overwrite)
     t = time.perf_counter()
-    ds = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates, extra_negatives=args.extra_negatives)
+    archives = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates, extra_negatives=args.extra_negatives)
     load_s = time.perf_counter() - t
     labels = [load_annotations(p) for p in args.labels]
     traffic = args.traffic or "right"
-    if labels:
-        ds = ds.concatenate(labelled_dataset(labels, flip=traffic == "left"))
+    ds = archives.concatenate(labelled_dataset(labels, flip=traffic == "left")) if labels else archives
     check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
     augment = AugmentConfig(copies=args.augment)
     model = train(ds, config, C=args.C if args.C is not None else DEFAULT_C, random_state=args.seed, augment=augment)
@@ -62,12 +65,10 @@ def run(args) -> int:
     if args.classifier == "convnet":
         from ..training.convnet import ConvNetTraining, with_convnet
 
-        if not labels:
-            raise InputError("--classifier convnet learns from labelled frames: pass --labels")
         say_ = human_print(args)
-        say_(f"network: training on {len(ds)} patches and the labelled frames of {len(labels)} labels files "
+        say_(f"network: training on {len(archives)} patches and the labelled frames of {len(labels)} labels files "
              f"({args.rounds} rounds of {args.epochs} epochs)")
-        model = with_convnet(model, ds, labels, ConvNetTraining(epochs=args.epochs, seed=args.seed), rounds=args.rounds,
+        model = with_convnet(model, archives, labels, ConvNetTraining(epochs=args.epochs, seed=args.seed), rounds=args.rounds,
                              progress=not args.json)
     elif labels:
         model = with_box_refinement(model, labels)
