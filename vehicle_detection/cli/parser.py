@@ -167,7 +167,7 @@ def _add_train(sub) -> None:
                    "and the --labels frames (needs the train-cnn extra: PyTorch)")
     p.add_argument("--rounds", type=_positive_int, default=2, help="convnet: training rounds, each after the first with the "
                    "previous round's hard negatives from the labelled frames (default %(default)s)")
-    p.add_argument("--epochs", type=_positive_int, default=6, help="convnet: epochs a round (default %(default)s)")
+    p.add_argument("--epochs", type=_positive_int, default=8, help="convnet: epochs a round (default %(default)s)")
     _add_traffic(p, learned=True, default="right")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout (the human lines go to stderr)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model file")

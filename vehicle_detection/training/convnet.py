@@ -59,7 +59,7 @@ class ConvNetTraining:
     """
 
     channels: tuple[int, int, int, int] = (16, 32, 32, 32)
-    epochs: int = 10
+    epochs: int = 8
     batch: int = 256
     learning_rate: float = 3e-3
     box_weight: float = 4.0
