@@ -68,6 +68,7 @@ __all__ = [
     "SearchScale",
     "SearchPlan",
     "plan_windows",
+    "plan_bands",
     "search",
     "window_patches",
 ]
@@ -419,6 +420,31 @@ def plan_windows(frame_shape, plan: SearchPlan, config: FeatureConfig) -> list[n
         band = _band(dummy, s, config, plan.overhang_of(s), plan.y_shift, plan.reach_bottom)
         out.append(np.zeros((0, 4), np.int64) if band is None else _band_boxes(band, config, f, frame_shape))
     return out
+
+
+def plan_bands(frame: np.ndarray, plan: SearchPlan, config: FeatureConfig):
+    """Each scale's band of a frame as the search cuts it, with its windows (for training).
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+        A frame at the plan's reference height.
+    plan : SearchPlan
+    config : FeatureConfig
+        The model's (its window and cell sizes).
+
+    Yields
+    ------
+    (int, ndarray, ndarray, ndarray)
+        The scale's index in the plan; the band resized to the scale (RGB ``uint8``); the rows
+        and columns of its windows, in cells of the band (every ``step``); and the windows in
+        the frame's pixels, float64 ``(rows * cols, 4)`` in row-major order, not clipped (they
+        may overhang the frame's sides).
+    """
+    for k, s in enumerate(plan.scales):
+        band = _band(frame, s, config, plan.overhang_of(s), plan.y_shift, plan.reach_bottom)
+        if band is not None:
+            yield k, band.image, band.rows, band.cols, _band_windows(band, config, 1.0)
 
 
 def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassifier, plan: SearchPlan | None = None) -> np.ndarray:

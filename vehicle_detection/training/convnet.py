@@ -150,11 +150,12 @@ def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_
     ``threshold``, at most ``per_frame`` a frame, no two overlapping by more than IoU 0.5),
     searched at the plan's scales over the whole frame height."""
     from ..features import FeatureConfig
-    from ..search import SearchScale, _band, _band_windows
+    from ..search import SearchScale, plan_bands
 
     cfg = FeatureConfig()
     # every scale over the whole frame height: the training cameras' horizons differ
-    scales = [SearchScale(s.scale, 0, reference_height, step=s.step, aspect=s.aspect) for s in plan.scales]
+    scales = tuple(SearchScale(s.scale, 0, reference_height, step=s.step, aspect=s.aspect) for s in plan.scales)
+    plan = dataclasses.replace(plan, scales=scales, horizon=None, reach_bottom=False)
     out = FrameSamples.empty()
     for ann in annotations:
         name = ann.camera or (ann.path.stem if ann.path else "labels")
@@ -163,15 +164,11 @@ def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_
             cars = np.asarray(labels.cars, np.float64).reshape(-1, 4) * f
             ignore = np.asarray(labels.ignore, np.float64).reshape(-1, 4) * f
             wins, scores = [], []
-            for s in scales:
-                band = _band(work, s, cfg, plan.overhang_of(s))
-                if band is None:
-                    continue
-                out_map = net.forward(band.image)[np.ix_(band.rows, band.cols)]
-                margins = out_map[..., 0].ravel()
+            for _, image, rows, cols, windows in plan_bands(work, plan, cfg):
+                margins = net.forward(image)[np.ix_(rows, cols)][..., 0].ravel()
                 keep = margins > threshold
                 if keep.any():
-                    wins.append(_band_windows(band, cfg, 1.0, keep))
+                    wins.append(windows[keep])
                     scores.append(margins[keep])
             if not wins:
                 continue
