@@ -270,3 +270,15 @@ def test_a_car_60_pixels_tall_in_a_wide_still_is_found_with_a_fitting_box():
     assert len(found), "no vehicle found"
     iou = box_iou(found.xyxy, want[None])[:, 0]
     assert iou.max() >= 0.7, f"best box {found.xyxy[iou.argmax()].tolist()} against {want.round().tolist()}: IoU {iou.max():.2f}"
+
+
+def test_refine_refuses_a_network_model(tmp_path, capsys):
+    from pathlib import Path
+
+    from vehicle_detection.cli.main import main
+
+    labels = Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json"
+    assert main(["refine", "--labels", str(labels), "--model", "convnet", "--out", str(tmp_path / "r.npz")]) == 3
+    err = capsys.readouterr().err
+    assert "network model" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r.npz").exists()
