@@ -31,7 +31,7 @@ from ..errors import require
 from ..geometry import box_iou
 from ..metrics.detection import Annotations
 from ..refine import crop_windows, edge_offsets, jittered_windows, working_frame
-from .mining import labelled_frames
+from .mining import _fraction_inside, labelled_frames
 
 __all__ = ["FrameSamples", "ConvNetTraining", "frame_samples", "fit_convnet", "hard_windows", "network", "export", "samples_from", "detector_settings", "with_convnet"]
 
@@ -89,25 +89,14 @@ class FrameSamples:
         return FrameSamples(*(np.concatenate([getattr(self, f.name), getattr(other, f.name)]) for f in dataclasses.fields(self)))
 
 
-def _fraction_inside(windows: np.ndarray, regions: np.ndarray) -> np.ndarray:
-    if not len(regions) or not len(windows):
-        return np.zeros(len(windows))
-    x1 = np.maximum(windows[:, None, 0], regions[None, :, 0])
-    y1 = np.maximum(windows[:, None, 1], regions[None, :, 1])
-    x2 = np.minimum(windows[:, None, 2], regions[None, :, 2])
-    y2 = np.minimum(windows[:, None, 3], regions[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area = (windows[:, 2] - windows[:, 0]) * (windows[:, 3] - windows[:, 1])
-    return (inter / area[:, None]).max(axis=1)
-
-
 def _background(cars: np.ndarray, ignore: np.ndarray, windows: np.ndarray) -> np.ndarray:
     """Which windows are background: no car overlaps them (IoU < 0.2), and at most half of
     each lies inside an ignore box."""
     keep = np.ones(len(windows), bool)
     if len(cars):
         keep &= box_iou(windows, cars).max(axis=1) < 0.2
-    keep &= _fraction_inside(windows, ignore) <= 0.5
+    if len(ignore) and len(windows):
+        keep &= _fraction_inside(windows, ignore).max(axis=1) <= 0.5
     return keep
 
 
