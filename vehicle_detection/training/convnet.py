@@ -85,8 +85,9 @@ class FrameSamples:
     def __len__(self) -> int:
         return len(self.labels)
 
-    def concatenate(self, other: FrameSamples) -> FrameSamples:
-        return FrameSamples(*(np.concatenate([getattr(self, f.name), getattr(other, f.name)]) for f in dataclasses.fields(self)))
+    def concatenate(self, *others: FrameSamples) -> FrameSamples:
+        parts = (self, *others)
+        return FrameSamples(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(self)))
 
 
 def _background(cars: np.ndarray, ignore: np.ndarray, windows: np.ndarray) -> np.ndarray:
@@ -103,7 +104,7 @@ def _background(cars: np.ndarray, ignore: np.ndarray, windows: np.ndarray) -> np
 def frame_samples(annotations: Sequence[Annotations], config: ConvNetTraining, *, reference_height: int = 720) -> FrameSamples:
     """Car and background windows of every labelled frame (see the module docstring)."""
     rng = np.random.default_rng(config.seed)
-    out = FrameSamples.empty()
+    parts: list[FrameSamples] = []
     for ann in annotations:
         name = ann.camera or (ann.path.stem if ann.path else "labels")
         for _, frame, labels in labelled_frames(ann):
@@ -129,8 +130,8 @@ def frame_samples(annotations: Sequence[Annotations], config: ConvNetTraining, *
             offsets = np.full((len(windows), 4), np.nan, np.float32)
             if n_pos:
                 offsets[:n_pos] = np.concatenate(offs)
-            out = out.concatenate(FrameSamples(patches, labels_, offsets, np.full(len(windows), name)))
-    return out
+            parts.append(FrameSamples(patches, labels_, offsets, np.full(len(windows), name)))
+    return FrameSamples.empty().concatenate(*parts)
 
 
 def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_frame: int = 40, threshold: float = -1.0,
@@ -145,7 +146,7 @@ def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_
     # every scale over the whole frame height: the training cameras' horizons differ
     scales = tuple(SearchScale(s.scale, 0, reference_height, step=s.step, aspect=s.aspect) for s in plan.scales)
     plan = dataclasses.replace(plan, scales=scales, horizon=None, reach_bottom=False)
-    out = FrameSamples.empty()
+    parts: list[FrameSamples] = []
     for ann in annotations:
         name = ann.camera or (ann.path.stem if ann.path else "labels")
         for _, frame, labels in labelled_frames(ann):
@@ -173,9 +174,9 @@ def hard_windows(net: ConvNet, annotations: Sequence[Annotations], plan, *, per_
                     chosen.append(int(i))
             if chosen:
                 w = wins[chosen]
-                out = out.concatenate(FrameSamples(crop_windows(work, w, 64), np.zeros(len(w), np.int8),
+                parts.append(FrameSamples(crop_windows(work, w, 64), np.zeros(len(w), np.int8),
                                                    np.full((len(w), 4), np.nan, np.float32), np.full(len(w), name)))
-    return out
+    return FrameSamples.empty().concatenate(*parts)
 
 
 #: The network model's window threshold (a logit: 2 is a probability of 0.88).
@@ -218,7 +219,6 @@ def fit_convnet(
     offsets: np.ndarray,
     config: ConvNetTraining = ConvNetTraining(),
     *,
-    start: ConvNet | None = None,
     progress: bool = False,
 ) -> tuple[ConvNet, dict]:
     """Train the network on 64x64 patches.
@@ -231,8 +231,6 @@ def fit_convnet(
     offsets : ndarray of float, shape (N, 4)
         Edge offsets of each vehicle patch's car (NaN rows: no box target).
     config : ConvNetTraining
-    start : ConvNet, optional
-        Not used yet: every fit starts from random weights (seeded).
 
     Returns
     -------
@@ -376,10 +374,10 @@ def export(model) -> ConvNet:
 
 def samples_from(datasets: Iterable) -> FrameSamples:
     """Archive patches (:class:`~vehicle_detection.training.data.Dataset`) as samples without box targets."""
-    out = FrameSamples.empty()
+    parts: list[FrameSamples] = []
     for d in datasets:
-        out = out.concatenate(FrameSamples(d.images, d.labels.astype(np.int8), np.full((len(d), 4), np.nan, np.float32), d.sources))
-    return out
+        parts.append(FrameSamples(d.images, d.labels.astype(np.int8), np.full((len(d), 4), np.nan, np.float32), d.sources))
+    return FrameSamples.empty().concatenate(*parts)
 
 
 def with_convnet(model, patches, annotations: Sequence[Annotations], config: ConvNetTraining = ConvNetTraining(), *,
