@@ -282,3 +282,52 @@ def test_refine_refuses_a_network_model(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "network model" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "r.npz").exists()
+
+
+def _one_car_frame(tmp_path, car):
+    """A labelled folder of one grey 720x1280 frame with a red car box, and its annotations."""
+    import json
+
+    from vehicle_detection.io.images import write_image
+    from vehicle_detection.metrics.detection import load_annotations
+
+    frame = np.full((720, 1280, 3), 120, np.uint8)
+    x1, y1, x2, y2 = car
+    frame[y1:y2, x1:x2] = (200, 20, 20)
+    (tmp_path / "frames").mkdir()
+    write_image(tmp_path / "frames" / "a.png", frame)
+    spec = {"video": "frames", "frames": {"0": {"file": "a.png", "cars": [list(car)], "ignore": []}}}
+    (tmp_path / "labels.json").write_text(json.dumps(spec))
+    return load_annotations(tmp_path / "labels.json")
+
+
+def test_a_side_on_car_trains_wide_windows_squeezed_to_the_patch(tmp_path):
+    """A car twice as wide as tall: square windows around it (side at least 0.8 times its
+    width) show it over at most 5/8 of their rows; the wide windows, squeezed to 64x64, show it
+    over more than 2/3 of their rows, as the search's wide windows will. With ``wide=1`` there
+    are none."""
+    from vehicle_detection.training.convnet import ConvNetTraining, frame_samples
+
+    ann = _one_car_frame(tmp_path, (500, 450, 700, 550))
+
+    def red_rows(samples):
+        cars = samples.patches[samples.labels == 1].astype(int)
+        red = (cars[..., 0] > 150) & (cars[..., 1] < 80)
+        return (red.mean(axis=2) > 0.3).mean(axis=1)  # fraction of each patch's rows the car crosses
+
+    square = red_rows(frame_samples([ann], ConvNetTraining(wide=1.0)))
+    both = red_rows(frame_samples([ann], ConvNetTraining(wide=2.0)))
+    assert len(square) and square.max() <= 0.66
+    assert len(both) > len(square) + 5 and (both > 0.68).sum() >= len(both) - len(square) - 2
+
+
+def test_the_network_plan_has_wide_windows_beside_the_square_ones():
+    """Wide windows (twice as wide as tall) search the same bands as the base plan's square
+    windows up to scale 4; ``wide=1`` leaves them out."""
+    from vehicle_detection.training.convnet import detector_settings
+
+    base = load_default_model().detector_config
+    plan = detector_settings(base).plan
+    square = [(s.scale, s.y_start, s.y_stop) for s in base.plan.scales if s.scale <= 4]
+    assert [(s.scale, s.y_start, s.y_stop) for s in plan.scales if s.aspect == 2.0] == square
+    assert all(s.aspect == 1.0 for s in detector_settings(base, wide=1.0).plan.scales)

@@ -69,7 +69,7 @@ def training_labels(cameras: list[str]) -> list[Path]:
 
 def evaluate(model: Path, labels: list[str]) -> dict:
     cmd = ["vehicle-detection", "evaluate", "--labels", *[str(DEV / f) for f in labels], "--model", str(model), "--json"]
-    out = subprocess.run(cmd, capture_output=True, text=True)
+    out = subprocess.run(cmd, check=False, capture_output=True, text=True)
     if out.returncode:
         raise SystemExit(f"evaluate failed: {' '.join(cmd)}\n{out.stderr[-2000:]}")
     return json.loads(out.stdout)["all"]
@@ -91,19 +91,18 @@ def build_cnn(train_cams: list[str], out: Path, *, without_extras: bool, args) -
     anns = [load_annotations(f) for f in training_labels(train_cams)]
     print(f"  {len(archives)} archive patches; {len(anns)} label files", flush=True)
     model = train(archives, load_default_model().config, evaluate=False)
-    model = with_convnet(model, archives, anns, ConvNetTraining(epochs=args.epochs), rounds=args.rounds, progress=args.verbose)
+    model = with_convnet(model, archives, anns, ConvNetTraining(epochs=args.epochs, wide=args.wide), rounds=args.rounds, progress=args.verbose)
     _settings(model, args).save(out, overwrite=True)
     return model.metrics["convnet"]
 
 
 def _settings(model, args):
     """The network model's detector settings (:func:`vehicle_detection.training.convnet.detector_settings`)."""
+    from vehicle_detection.classifier import load_default_model
     from vehicle_detection.training.convnet import detector_settings
 
-    from vehicle_detection.classifier import load_default_model
-
     dc = detector_settings(load_default_model().detector_config, threshold=args.threshold, candidates=args.candidates,
-                           small=not args.no_small, large=not args.no_large)
+                           small=not args.no_small, large=not args.no_large, wide=args.wide)
     return model.replace(detector_config=dc)
 
 
@@ -140,6 +139,7 @@ def main(argv=None) -> int:
     p.add_argument("--candidates", type=float, nargs="+", default=[0.19, 0.27, 0.35, 0.43, 0.51, 0.59, 0.67])
     p.add_argument("--no-small", action="store_true", help="without the 48-pixel windows")
     p.add_argument("--no-large", action="store_true", help="without the 384-pixel windows")
+    p.add_argument("--wide", type=float, default=2.0, help="width over height of the wide windows (1: none)")
     p.add_argument("--all", action="store_true", help="also train on every camera and score the held-out splits")
     p.add_argument("--reuse", action="store_true", help="score models already in --work")
     p.add_argument("--verbose", action="store_true")

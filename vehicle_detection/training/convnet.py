@@ -7,9 +7,11 @@ cameras, windows cut as the search cuts them (the frame resized to the plan's re
 
 * **cars**: square windows jittered around each labelled car (side 0.8 to 1.4 times its larger
   dimension, centre moved by up to 0.15 sides), kept where their IoU with the car is at least
-  0.45, each with the edge offsets that move it onto the car (the box head's targets);
-* **background**: windows of the search's sizes anywhere below the top fifth of the frame that
-  overlap no car (IoU < 0.2) and lie mostly outside every ``ignore`` box;
+  0.45, each with the edge offsets that move it onto the car (the box head's targets); a car
+  at least ``wide_from`` times as wide as tall (seen side-on or at an angle) also gets windows
+  ``wide`` times as wide as tall, jittered alike: the search's wide windows, squeezed to 64x64;
+* **background**: windows of the search's sizes and shapes anywhere below the top fifth of the
+  frame that overlap no car (IoU < 0.2) and lie mostly outside every ``ignore`` box;
 * **hard background**, in later rounds: the windows of the training frames the previous round's
   network scores highest among those.
 
@@ -33,7 +35,7 @@ from ..metrics.detection import Annotations
 from ..refine import crop_windows, edge_offsets, jittered_windows, working_frame
 from .mining import _fraction_inside, labelled_frames
 
-__all__ = ["FrameSamples", "ConvNetTraining", "frame_samples", "fit_convnet", "hard_windows", "network", "export", "samples_from", "detector_settings", "with_convnet"]
+__all__ = ["ConvNetTraining", "FrameSamples", "detector_settings", "export", "fit_convnet", "frame_samples", "hard_windows", "network", "samples_from", "with_convnet"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,10 @@ class ConvNetTraining:
         Jittered windows drawn around each labelled car (fewer are kept: IoU >= 0.45).
     negatives_per_frame : int
         Background windows drawn in each labelled frame.
+    wide : float
+        Width over height of the wide windows (1: none).
+    wide_from : float
+        Cars at least this wide for their height train the wide windows too.
     seed : int
     threads : int
         PyTorch's threads.
@@ -65,6 +71,8 @@ class ConvNetTraining:
     box_weight: float = 4.0
     per_car: int = 24
     negatives_per_frame: int = 100
+    wide: float = 2.0
+    wide_from: float = 1.3
     seed: int = 0
     threads: int = 2
 
@@ -101,6 +109,14 @@ def _background(cars: np.ndarray, ignore: np.ndarray, windows: np.ndarray) -> np
     return keep
 
 
+def _jittered(car: np.ndarray, rng: np.random.Generator, n: int, aspect: float) -> np.ndarray:
+    """``n`` windows ``aspect`` times as wide as tall jittered around ``car``: square ones
+    (:func:`~vehicle_detection.refine.jittered_windows`) in the frame squeezed ``aspect`` times
+    across, stretched back. (Squeezing leaves IoU unchanged.)"""
+    squeeze = np.array([aspect, 1.0, aspect, 1.0])
+    return jittered_windows(car / squeeze, rng, n, size_range=(0.8, 1.4), shift=0.15) * squeeze
+
+
 def frame_samples(annotations: Sequence[Annotations], config: ConvNetTraining, *, reference_height: int = 720) -> FrameSamples:
     """Car and background windows of every labelled frame (see the module docstring)."""
     rng = np.random.default_rng(config.seed)
@@ -114,15 +130,20 @@ def frame_samples(annotations: Sequence[Annotations], config: ConvNetTraining, *
             ignore = np.asarray(labels.ignore, np.float64).reshape(-1, 4) * f
             wins, offs = [], []
             for car in cars:
-                jit = jittered_windows(car, rng, config.per_car, size_range=(0.8, 1.4), shift=0.15)
-                good = box_iou(jit, car[None])[:, 0] >= 0.45
-                wins.append(jit[good])
-                offs.append(edge_offsets(jit[good], np.repeat(car[None], good.sum(), 0)))
+                shapes = [1.0]
+                if config.wide > 1 and (car[2] - car[0]) >= config.wide_from * (car[3] - car[1]):
+                    shapes.append(config.wide)
+                for aspect in shapes:
+                    jit = _jittered(car, rng, config.per_car, aspect)
+                    good = box_iou(jit, car[None])[:, 0] >= 0.45
+                    wins.append(jit[good])
+                    offs.append(edge_offsets(jit[good], np.repeat(car[None], good.sum(), 0)))
             n_pos = sum(len(x) for x in wins)
             side = np.exp(rng.uniform(np.log(40), np.log(min(330, h * 0.9)), config.negatives_per_frame * 2))
-            x0 = rng.uniform(-0.3, 1.0, len(side)) * w - side * 0.35
+            width = side * np.where(rng.random(len(side)) < (1 / 3 if config.wide > 1 else 0), config.wide, 1.0)
+            x0 = rng.uniform(-0.3, 1.0, len(side)) * w - width * 0.35
             y0 = rng.uniform(0.2 * h, h - side * 0.6)
-            neg = np.stack([x0, y0, x0 + side, y0 + side], axis=1)
+            neg = np.stack([x0, y0, x0 + width, y0 + side], axis=1)
             neg = neg[_background(cars, ignore, neg)][: config.negatives_per_frame]
             windows = np.concatenate([*wins, neg]) if n_pos else neg
             patches = crop_windows(work, windows, 64)
@@ -186,13 +207,16 @@ THRESHOLD = 2.0
 CANDIDATES = (0.19, 0.27, 0.35, 0.43, 0.51, 0.59, 0.67)
 
 
-def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDATES, small: bool = True, large: bool = True):
+def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDATES, small: bool = True, large: bool = True,
+                      wide: float = 2.0):
     """The detector settings of a network model, from the SVM model's (``base``, a
     :class:`~vehicle_detection.config.DetectorConfig`).
 
     The plan gains two scales the network scores cheaply: 48-pixel windows near the horizon
-    (``small``: cars about 30 pixels tall in a 540-row frame), and 384-pixel windows over the
-    lower half (``large``: cars half the frame height). The SVM's two-stage search does not
+    (``small``: cars about 30 pixels tall in a 540-row frame), 384-pixel windows over the
+    lower half (``large``: cars half the frame height), and beside each of the base plan's
+    scales up to 4 (windows 64 to 256 pixels tall) windows ``wide`` times as wide as tall, for
+    cars seen side-on or at an angle (``wide=1``: none). The SVM's two-stage search does not
     apply (the network scores a band in one pass). Bands that reach the frame's bottom keep
     reaching it when a high horizon moves the bands up (:attr:`SearchPlan.reach_bottom`).
     """
@@ -202,6 +226,8 @@ def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDAT
     scales = list(plan.scales)
     if small:
         scales.insert(0, SearchScale(0.75, 396, 468, step=1))
+    if wide > 1:
+        scales += [dataclasses.replace(s, aspect=float(wide)) for s in plan.scales if s.aspect == 1 and s.scale <= 4]
     if large:
         scales.append(SearchScale(6.0, 336, 720, step=1))
     plan = dataclasses.replace(plan, scales=tuple(scales), threshold=float(threshold), coarse_margin=None, reach_bottom=True)
@@ -408,11 +434,12 @@ def with_convnet(model, patches, annotations: Sequence[Annotations], config: Con
         raise ValueError(f"rounds must be >= 1; got {rounds}")
     t = time.perf_counter()
     data = samples_from([patches]).concatenate(frame_samples(annotations, config))
+    settings = detector_settings(model.detector_config, wide=config.wide)
     record = {}
     net, hard = None, 0
     for r in range(rounds):
         if r:
-            extra = hard_windows(net, annotations, model.detector_config.plan)
+            extra = hard_windows(net, annotations, settings.plan)
             data = data.concatenate(extra)
             hard += len(extra)
             if progress:
@@ -420,5 +447,5 @@ def with_convnet(model, patches, annotations: Sequence[Annotations], config: Con
         net, record = fit_convnet(data.patches, data.labels, data.offsets, config, progress=progress)
     record.update(rounds=rounds, hard_negatives=hard, total_seconds=round(time.perf_counter() - t, 1),
                   channels=list(config.channels), training_cameras=sorted({a.camera or "unnamed" for a in annotations}))
-    return model.replace(convnet=net, box_regressor=None, detector_config=detector_settings(model.detector_config),
+    return model.replace(convnet=net, box_regressor=None, detector_config=settings,
                          metrics={**model.metrics, "convnet": record})
