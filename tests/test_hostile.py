@@ -1911,3 +1911,198 @@ def test_shorten_cuts_long_values_for_messages():
     text = shorten(10**400)
     assert len(text) < 70 and text.endswith("(401 characters)")
     assert shorten("9x6") == "9x6"
+
+
+# --- issue 45: outputs over their own inputs, and the output check linear ----------------------
+
+
+def _labelled_copy(tmp_path: Path, kind: str) -> tuple[Path, Path]:
+    """A labels file beside a copy of what it labels: ``(labels, the video or image folder)``."""
+    import json
+
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    if kind == "video":
+        spec = json.loads((REPO / "dev_set" / "test_video.json").read_text())
+        shutil.copy(TEST_VIDEO, ds / "test_video.mp4")
+        spec["video"] = "test_video.mp4"
+        source = ds / "test_video.mp4"
+    else:
+        spec = json.loads((REPO / "dev_set" / "test_images.json").read_text())
+        shutil.copytree(TEST_IMAGES, ds / "test_images")
+        spec["video"] = "test_images"
+        source = ds / "test_images"
+    (ds / "labels.json").write_text(json.dumps(spec))
+    return ds / "labels.json", source
+
+
+@needs_media
+@pytest.mark.parametrize("kind", ["video", "images"])
+def test_refine_never_writes_its_model_over_the_labelled_footage(tmp_path, capsys, kind):
+    """Issue 45, 1: ``refine --out`` naming the labelled video, or an image in the labelled
+    folder, is exit 5 with ``--overwrite`` too, before any work; nothing changes on disk."""
+    labels, source = _labelled_copy(tmp_path, kind)
+    out = source if kind == "video" else source / "test3.jpg"
+    before = snapshot(tmp_path)
+    code, stdout, err = run_main(capsys, "refine", "--labels", labels, "--out", out, "--overwrite")
+    assert code == 5 and stdout == []
+    assert len(err) == 1 and str(out) in err[0] and "input" in err[0]
+    assert snapshot(tmp_path) == before
+
+
+@needs_media
+def test_train_never_writes_its_model_over_the_labelled_video_or_an_extra_negative(tmp_path, capsys):
+    """Issue 45, 1: ``train --model`` naming the labelled video or an image of
+    ``--extra-negatives`` is exit 5 with ``--overwrite`` too; nothing changes on disk."""
+    data = make_data(tmp_path / "data", 12, groups=6)
+    labels, video = _labelled_copy(tmp_path, "video")
+    neg = tmp_path / "neg" / "non-vehicles" / "HardNegatives"
+    neg.mkdir(parents=True)
+    shutil.copy(data / "non-vehicles" / "set" / "image0.png", neg / "x.png")
+    before = snapshot(tmp_path)
+    for model, extra in ((video, ["--labels", labels]), (neg / "x.png", ["--extra-negatives", tmp_path / "neg"])):
+        code, stdout, err = run_main(capsys, "train", "--data-dir", data, *extra, "--model", model, "--overwrite")
+        assert code == 5 and stdout == [], err
+        assert len(err) == 1 and str(model) in err[0] and "input" in err[0]
+    assert snapshot(tmp_path) == before
+
+
+@needs_media
+def test_evaluate_refuses_a_report_folder_inside_the_labelled_images(tmp_path, capsys):
+    """Issue 45, 2: the report would land among the images the labels name (and the next
+    evaluate would read its PNG as a frame): exit 5, the folder unchanged."""
+    labels, folder = _labelled_copy(tmp_path, "images")
+    before = snapshot(tmp_path)
+    code, _, err = run_main(capsys, "evaluate", "--labels", labels, "--report", folder, "--overwrite", "--no-progress")
+    assert code == 5
+    assert len(err) == 1 and "input folder" in err[0]
+    assert snapshot(tmp_path) == before
+
+
+def test_the_output_check_is_linear_in_the_number_of_outputs(tmp_path, monkeypatch):
+    """Issue 45, 7: a folder of N images gives N outputs against N inputs; each output is
+    checked against every input at once (resolved paths counted: about one per path, not N^2)."""
+    from vehicle_detection.io import _files
+
+    calls = 0
+    real = Path.resolve
+
+    def counting(self, *a, **k):
+        nonlocal calls
+        calls += 1
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Path, "resolve", counting)
+    n = 400
+    inputs = [tmp_path / "in" / f"{i}.jpg" for i in range(n)]
+    outputs = [tmp_path / "out" / f"{i}.jpg" for i in range(n)]
+    _files.check_outputs(outputs, inputs=inputs)
+    assert calls <= 6 * n, f"{calls} paths resolved for {n} outputs against {n} inputs"
+    with pytest.raises(OutputError, match="overwrite the input"):
+        _files.check_outputs([*outputs, inputs[-1]], inputs=inputs)
+
+
+# --- issue 45: model files that declare huge sizes ---------------------------------------------
+
+
+def _signed_model(tmp_path: Path, change_meta=None, arrays_of=None) -> Path:
+    """The embedded model rewritten, its digest recomputed (a forgery the digest cannot catch)."""
+    import json
+
+    from vehicle_detection.classifier import _digest, default_model_path
+
+    with np.load(default_model_path(), allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files if k != "meta"}
+        meta = json.loads(npz["meta"].tobytes())
+    if change_meta:
+        change_meta(meta)
+    meta["sha256"] = _digest(arrays, meta)
+    model = tmp_path / "forged.npz"
+    np.savez(model, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **(arrays_of(arrays) if arrays_of else arrays))
+    return model
+
+
+def test_a_signed_model_with_thousands_of_scales_is_refused_at_once(tmp_path, capsys):
+    """Issue 45, 4: 5,000 scales (a valid digest) grew to 24 GB; now exit 4 naming the limit."""
+    import tracemalloc
+
+    def many(meta):
+        scales = meta["detector_config"]["plan"]["scales"]
+        meta["detector_config"]["plan"]["scales"] = (scales * 5000)[:5000]
+
+    model = _signed_model(tmp_path, many)
+    tracemalloc.start()
+    code, _, err = run_main(capsys, "detect", TEST_IMAGES / "test1.jpg", "--model", model, "--out", tmp_path / "o.jpg")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert code == 4 and len(err) == 1 and "at most 64 scales" in err[0], err
+    assert peak < 200 << 20
+    assert not (tmp_path / "o.jpg").exists()
+
+
+def test_an_array_header_declaring_a_terabyte_is_refused_before_allocation(tmp_path, capsys):
+    """Issue 45, 4: an ``.npy`` header claiming a shape of 10^12 ended in a MemoryError (exit 1)."""
+    import zipfile
+
+    model = _signed_model(tmp_path)
+    forged = tmp_path / "huge.npz"
+    with zipfile.ZipFile(model) as src, zipfile.ZipFile(forged, "w") as dst:
+        for info in src.infolist():
+            data = src.read(info)
+            if info.filename == "coef.npy":
+                head_len = 10 + int.from_bytes(data[8:10], "little")
+                header = data[10:head_len].decode("latin1")
+                start, stop = header.index("'shape': (") + 10, header.index(")", header.index("'shape': ("))
+                header = (header[:start] + "1000000000000," + header[stop:]).ljust(head_len - 11) + "\n"
+                data = data[:8] + len(header).to_bytes(2, "little") + header.encode("latin1") + data[head_len:]
+            dst.writestr(info, data)
+    code, _, err = run_main(capsys, "detect", TEST_IMAGES / "test1.jpg", "--model", forged, "--out", tmp_path / "o.jpg")
+    assert code == 4 and len(err) == 1 and "declares shape (1000000000000,)" in err[0], err
+    assert not (tmp_path / "o.jpg").exists()
+
+
+# --- issue 45, 10: silent wrong results ---------------------------------------------------------
+
+
+@needs_media
+@pytest.mark.parametrize("case", ["box_off_the_frame", "frame_beyond_the_video", "row_beyond_the_video"])
+def test_evaluate_boxes_refuses_labels_or_rows_that_do_not_fit_the_video(tmp_path, capsys, case):
+    """With ``--boxes`` no frame is decoded; the labels and rows are still checked against the
+    labelled video (as the detector's run checks them): exit 3 naming the file, not a score."""
+    import json
+
+    labels, video = _labelled_copy(tmp_path, "video")
+    spec = json.loads(labels.read_text())
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x1,y1,x2,y2,track_id,score\n3,800,400,900,480,1,1.0\n")
+    if case == "box_off_the_frame":
+        spec["frames"]["0"]["cars"] = [[1200, 600, 1400, 800]]
+        words = "reaches beyond the 1280x720 frame"
+    elif case == "frame_beyond_the_video":
+        spec["frames"]["500"] = {"cars": [[800, 400, 900, 480]], "ignore": []}
+        words = "labels frame 500"
+    else:
+        csv.write_text(csv.read_text() + f"{2**31 - 1},800,400,900,480,1,1.0\n")
+        words = f"a row at frame {2**31 - 1}"
+    labels.write_text(json.dumps(spec))
+    code, out, err = run_main(capsys, "evaluate", "--labels", labels, "--boxes", csv)
+    assert code == 3 and out == []
+    assert len(err) == 1 and words in err[0], err
+
+
+@needs_media
+def test_evaluate_boxes_on_fitting_labels_still_scores(tmp_path, capsys):
+    labels, _ = _labelled_copy(tmp_path, "video")
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x1,y1,x2,y2,track_id,score\n3,800,400,900,480,1,1.0\n")
+    code, out, _ = run_main(capsys, "evaluate", "--labels", labels, "--boxes", csv)
+    assert code == 0 and any("F1" in line for line in out)
+
+
+@needs_media
+@pytest.mark.parametrize("name", ["o.png", "o.gif", "o.webm", "o"])
+def test_detect_refuses_to_write_a_video_under_another_format_s_name(tmp_path, capsys, name):
+    """Issue 45, 10: ``detect V --out o.png`` wrote MP4 bytes into o.png; now exit 5 before any work."""
+    code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out", tmp_path / name, "--no-progress")
+    assert code == 5 and len(err) == 1 and "written as MP4" in err[0], err
+    assert list(tmp_path.iterdir()) == []

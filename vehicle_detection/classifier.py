@@ -17,6 +17,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import os
 import zipfile
 from collections.abc import Mapping
@@ -30,7 +31,7 @@ import numpy as np
 from . import __version__, deprecation
 from .config import DetectorConfig
 from .convnet import ConvNet
-from .errors import ModelError
+from .errors import ModelError, shorten
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
 from .io import atomic_output, input_file
 from .refine import BoxRegressor
@@ -408,6 +409,23 @@ def _box_regressor(path: Path, data: dict[str, np.ndarray], n: int) -> BoxRegres
         raise ModelError(f"{path}: {exc}") from None
 
 
+def _check_declared_size(path: Path, name: str, zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> None:
+    """Refuse an array whose ``.npy`` header declares more bytes than its member holds, before
+    NumPy allocates what the header declares (a forged shape of 10^12 would be terabytes)."""
+    with zf.open(info) as f:
+        try:
+            version = np.lib.format.read_magic(f)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(f)
+        except ValueError as exc:
+            raise ModelError(f"{path}: array {name} has no valid .npy header: {shorten(str(exc))}") from None
+        header = f.tell()
+    declared = math.prod(shape) * dtype.itemsize
+    if declared + header != info.file_size:
+        raise ModelError(f"{path}: array {name} declares shape {shorten(str(shape))} ({declared} bytes) but holds "
+                         f"{info.file_size - header} bytes")
+
+
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
     """The arrays of a model file, refusing oversized members before reading them."""
     expected = {"meta", *_ARRAYS}
@@ -424,6 +442,7 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
                 limit = _MAX_HEADER_BYTES if name == "meta" else _MAX_ARRAY_BYTES
                 if info.file_size > limit:
                     raise ModelError(f"{path}: array {name} is {info.file_size} bytes unpacked, more than a model holds ({limit})")
+                _check_declared_size(path, name, zf, info)
         with np.load(path, allow_pickle=False) as npz:
             return {k: npz[k] for k in expected}
     except ModelError:

@@ -132,6 +132,11 @@ def _default_scales():
     )
 
 
+#: The most scales a search plan may have (the shipped plans have up to 14): a model file
+#: declaring thousands would make every frame's search take minutes and gigabytes.
+MAX_SCALES = 64
+
+
 @dataclass(frozen=True)
 class SearchPlan:
     """Where and at what sizes to search, and the margin above which a window is a hit.
@@ -232,6 +237,8 @@ class SearchPlan:
             raise ValueError(f"window_border must be 'frame' or 'crop', got {self.window_border!r}")
         if not self.scales:
             raise ValueError("a search plan needs at least one scale")
+        if len(self.scales) > MAX_SCALES:
+            raise ValueError(f"a search plan has at most {MAX_SCALES} scales, got {len(self.scales)}")
         if not 64 <= self.reference_height <= 1440:
             raise ValueError(f"reference_height must be 64 to 1440 pixels, got {self.reference_height}")
         if not np.isfinite(self.threshold):

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputError, UsageError
 from ..io.tables import read_boxes_csv
-from ..metrics.detection import evaluation_report, load_annotations, pool_by_camera, pool_reports
+from ..io.images import image_size, list_images
+from ..io.video import probe_video
+from ..metrics.detection import check_boxes_inside, evaluation_report, load_annotations, pool_by_camera, pool_reports
 from ..metrics.reporting import ReportSource, check_report_dir, labels_camera, write_evaluation_report
 from ..metrics.runner import evaluate_labelled
 from .options import human_print, load_camera, load_detector
@@ -47,6 +52,42 @@ def _evaluate_sources(args, all_labels) -> dict[str, Path | None]:
     return sources
 
 
+def _check_fit(labels, found, source: Path, boxes_csv) -> None:
+    """With ``--boxes`` no frame is decoded: the labels and the CSV are checked against the
+    labelled video's (or image folder's) frame count and frame size as the detector's run
+    checks them, so that labels of another video, or rows of another run, are refused rather
+    than scored as misses.
+
+    Raises
+    ------
+    InputError
+        A labelled frame or a CSV row beyond the footage's frames, or a labelled box beyond its
+        frame.
+    """
+    if source.is_dir():
+        images = list_images(source)
+        n, sizes = len(images), {}
+        for i in labels.frames:
+            if i < n:
+                sizes[i] = image_size(images[i])
+    else:
+        info = probe_video(source)
+        # the container's count is a plausibility bound (an edit list can hide a few frames)
+        n = None if info.n_frames is None else math.ceil(info.n_frames * 1.01) + 2
+        sizes = dict.fromkeys(labels.frames, (info.width, info.height))
+    if n is not None:
+        beyond = sorted(i for i in labels.frames if i >= n)
+        if beyond:
+            raise InputError(f"{labels.path}: labels frame {beyond[0]}, but {source} has {n if source.is_dir() else 'about ' + str(info.n_frames)} "
+                             "frames; wrong video or labels?")
+        rows = np.asarray(found.frame)
+        if rows.size and rows.max() >= n:
+            raise InputError(f"{boxes_csv}: a row at frame {int(rows.max())}, but {source} has "
+                             f"{n if source.is_dir() else 'about ' + str(info.n_frames)} frames; boxes of another video?")
+    for i, (w, h) in sizes.items():
+        check_boxes_inside(labels, w, h, frames=[i], source=source)
+
+
 def run(args) -> int:
     all_labels = [load_annotations(p) for p in args.labels]
     for labels in all_labels:
@@ -72,6 +113,8 @@ def run(args) -> int:
         name, source = str(labels.path), sources[str(labels.path)]
         if args.boxes:
             found = read_boxes_csv(args.boxes)
+            if source is not None and source.exists():
+                _check_fit(labels, found, source, args.boxes)
             reports[name] = evaluation_report(found, labels)
         else:
             reports[name], found = evaluate_labelled(labels, detector, source=source, camera=camera, progress=not args.no_progress)

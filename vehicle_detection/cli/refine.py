@@ -17,13 +17,14 @@ __all__ = ["run"]
 
 
 def run(args) -> int:
-    inputs = list(args.labels) + ([args.model] if args.model is not None else [])
+    labels = [load_annotations(p) for p in args.labels]
+    # the labelled videos and image folders are inputs too
+    inputs = [*args.labels, *(a.source for a in labels if a.source is not None), *([args.model] if args.model is not None else [])]
     check_output_path(args.out, overwrite=args.overwrite, inputs=inputs)  # before any work
     model = load_default_model() if args.model is None else VehicleClassifier.load(args.model)
     if model.convnet is not None:
         raise InputError(f"{args.model}: a network model gives each window's edges itself; refine fits the box refinement "
                          "of an SVM model (train the network with your labels instead: train --classifier convnet --labels ...)")
-    labels = [load_annotations(p) for p in args.labels]
     n_frames = sum(len(a.frames) for a in labels)
     n_cars = sum(a.n_cars for a in labels)
     if n_cars == 0:

@@ -50,12 +50,14 @@ def run(args) -> int:
             raise InputError("--classifier convnet learns the cars' edges from labelled frames: pass --labels")
         require("torch", "train-cnn", "train --classifier convnet")
     root = default_data_dir(args.data_dir)
+    labels = [load_annotations(p) for p in args.labels]
     if args.model is not None:
-        _check_model_output(args.model, root, overwrite=args.overwrite)
+        # the labels, their videos and image folders, and the extra negatives' folders are inputs too
+        read = [*args.labels, *(a.source for a in labels if a.source is not None), *(args.extra_negatives or [])]
+        _check_model_output(args.model, root, overwrite=args.overwrite, inputs=read)
     t = time.perf_counter()
     archives = load_dataset(args.data_dir, drop_duplicates=args.drop_duplicates, extra_negatives=args.extra_negatives)
     load_s = time.perf_counter() - t
-    labels = [load_annotations(p) for p in args.labels]
     traffic = args.traffic or "right"
     ds = archives.concatenate(labelled_dataset(labels, flip=traffic == "left")) if labels else archives
     check_split_sizes(ds.labels, ds.groups, name=str(root))  # before any feature is computed
@@ -92,7 +94,7 @@ def run(args) -> int:
         )
     say(f"time: load {load_s:.1f} s, features {m['feature_seconds']:.1f} s, final fit {m['fit_seconds']:.1f} s (all {m['n_images']} images)")
     if args.model is not None:
-        model.save(args.model, overwrite=args.overwrite)
+        model.save(args.model, overwrite=args.overwrite, inputs=read)
         say(f"model saved to {args.model}")
     else:
         say("model not saved (pass --model OUT.npz to save it)")
@@ -101,10 +103,11 @@ def run(args) -> int:
     return 0
 
 
-def _check_model_output(model, root: Path, *, overwrite: bool) -> None:
-    """The training data are inputs: ``--model`` may not be an archive or lie in a class folder."""
+def _check_model_output(model, root: Path, *, overwrite: bool, inputs=()) -> None:
+    """The training data are inputs: ``--model`` may not be an archive or lie in a class folder,
+    nor be or lie in any of ``inputs``."""
     model = Path(model)
-    check_output_path(model, overwrite=overwrite, inputs=[root / f"{c}.zip" for c in CLASSES])
+    check_output_path(model, overwrite=overwrite, inputs=[*(root / f"{c}.zip" for c in CLASSES), *inputs])
     target = model.resolve()
     for cls in CLASSES:
         folder = (root / cls).resolve()

@@ -26,4 +26,4 @@ from .images import (
 from .progress import in_notebook, plural, progress_bar
 from .tables import read_boxes_csv, read_lanes_csv, write_boxes_csv, write_lanes_csv
 from .timeline import Timeline
-from .video import X264_PRESETS, Encoding, VideoInfo, VideoWriter, probe_video, read_frames
+from .video import VIDEO_SUFFIXES, X264_PRESETS, Encoding, VideoInfo, VideoWriter, check_video_output, probe_video, read_frames

@@ -53,13 +53,6 @@ def umask() -> int:
     return mask
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def _special_kind(dest: Path) -> str | None:
     """What ``dest`` is when it exists and is not a regular file (a symlink counts); else None."""
     try:
@@ -104,7 +97,9 @@ def check_output_path(
         Allow replacing an existing regular file at ``dest`` (never an input, never a symlink,
         FIFO, device or socket).
     inputs : iterable of path-like
-        Files the run reads; ``dest`` may not resolve to any of them, whatever ``overwrite`` says.
+        Files and folders the run reads; ``dest`` may not resolve to any of these files, nor lie
+        inside any of these folders (the run's next reading would take it for an input),
+        whatever ``overwrite`` says.
 
     Returns
     -------
@@ -114,14 +109,11 @@ def check_output_path(
     Raises
     ------
     OutputError
-        If ``dest`` is an input, a folder, below a file instead of a folder, exists and is not a
+        If ``dest`` is an input or lies in an input folder, a folder, below a file instead of a folder, exists and is not a
         regular file (symlinks included, dangling or not), or exists and ``overwrite`` is false.
     """
     dest = Path(dest)
-    for src in inputs:
-        src = Path(src)
-        if dest.resolve() == src.resolve() or _same_file(dest, src):
-            raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
+    _refuse_over_inputs(dest, inputs if isinstance(inputs, _Inputs) else _Inputs(inputs))
     if dest.is_dir():
         raise OutputError(f"{dest}: output path is a folder; give a file name")
     _refuse_special(dest)
@@ -151,7 +143,7 @@ def check_outputs(
     OutputError
         As :func:`check_output_path`, or if two outputs name the same file.
     """
-    outputs, inputs = [Path(o) for o in outputs], list(inputs)
+    outputs, inputs = [Path(o) for o in outputs], _Inputs(inputs)
     seen: dict[Path, Path] = {}
     for out in outputs:
         key = out.resolve()
@@ -160,6 +152,45 @@ def check_outputs(
         seen[key] = out
         check_output_path(out, overwrite=overwrite, inputs=inputs)
     return outputs
+
+
+class _Inputs:
+    """A run's inputs, indexed once so that each output is checked against all of them in
+    constant time: by resolved path, by device and inode (hard links, other spellings), and
+    the folders among them."""
+
+    def __init__(self, inputs: Iterable[str | os.PathLike]) -> None:
+        self.paths: dict[Path, Path] = {}
+        self.inodes: dict[tuple[int, int], Path] = {}
+        self.folders: dict[Path, Path] = {}
+        for src in inputs:
+            src = Path(src)
+            key = src.resolve()
+            self.paths.setdefault(key, src)
+            try:
+                st = os.stat(key)
+            except OSError:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                self.folders.setdefault(key, src)
+            else:
+                self.inodes.setdefault((st.st_dev, st.st_ino), src)
+
+
+def _refuse_over_inputs(dest: Path, inputs: _Inputs) -> None:
+    key = dest.resolve()
+    src = inputs.paths.get(key)
+    if src is None and inputs.inodes:
+        with suppress(OSError):
+            st = os.stat(key)
+            src = inputs.inodes.get((st.st_dev, st.st_ino))
+    if src is not None and src.resolve() not in inputs.folders:
+        raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
+    if inputs.folders:
+        for parent in (key, *key.parents):
+            if parent in inputs.folders:
+                raise OutputError(f"{dest}: output would be written into the input folder {inputs.folders[parent]}; "
+                                  "choose another output path")
 
 
 def refuse_inputs(dest: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:

@@ -43,10 +43,11 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from ._files import atomic_output, input_file
-from ..errors import InputError, OutputError
+from ..errors import InputError, OutputError, shorten
 
 __all__ = [
     "IMAGE_EXTENSIONS",
+    "image_size",
     "MAX_WIDTH_TO_HEIGHT",
     "MAX_HEIGHT_TO_WIDTH",
     "SEARCH_HEIGHT",
@@ -130,6 +131,23 @@ def _exif_orientation(img: Image.Image) -> int:
     except Exception:  # a damaged EXIF block does not make the pixels unreadable
         return 1
     return value if 1 <= value <= 8 else 1
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """``(width, height)`` of an image file as :func:`read_image` would return it (EXIF
+    orientation applied), from its header: no pixel is decoded.
+
+    Raises
+    ------
+    InputError
+        If the file cannot be opened as an image.
+    """
+    try:
+        with Image.open(path) as img:
+            w, h = img.size
+            return (h, w) if _exif_orientation(img) >= 5 else (w, h)
+    except (OSError, ValueError, Image.DecompressionBombError) as exc:
+        raise InputError(f"{path}: not a readable image ({shorten(str(exc))})") from None
 
 
 def _orient(arr: np.ndarray, orientation: int) -> np.ndarray:

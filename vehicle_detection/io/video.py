@@ -76,7 +76,26 @@ from .progress import plural
 from .timeline import Timeline, timing
 from ..errors import InputError, OutputError
 
-__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS"]
+__all__ = ["VideoInfo", "probe_video", "read_frames", "VideoWriter", "Encoding", "X264_PRESETS", "VIDEO_SUFFIXES",
+           "check_video_output"]
+
+#: The file name suffixes of the MP4 files :class:`VideoWriter` writes (any case).
+VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov")
+
+
+def check_video_output(path: str | os.PathLike) -> Path:
+    """Refuse an annotated video's path whose suffix is not an MP4's (``o.png`` would hold MP4 bytes).
+
+    Raises
+    ------
+    OutputError
+        Naming the path and the suffixes accepted.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise OutputError(f"{path}: an annotated video is written as MP4; name it {' or '.join(VIDEO_SUFFIXES)}, "
+                          f"not {path.suffix or 'without a suffix'}")
+    return path
 
 #: Largest decoded frame index anything here takes (a video of 2**31 frames runs for over two
 #: years at 30 frames a second).
@@ -616,7 +635,7 @@ class VideoWriter:
     path : path-like
         Output file. It appears only once the video is complete (see
         :func:`vehicle_detection.io.atomic_output`). The container is always MP4, whatever
-        the suffix.
+        the suffix, which must be one of :data:`VIDEO_SUFFIXES`.
     fps : float or Fraction
         Frame rate of the output, > 0 (for example :attr:`VideoInfo.fps` of the input). It is
         stored as a fraction with a denominator of at most 10,000, so rates such as
@@ -646,8 +665,9 @@ class VideoWriter:
     ValueError
         If ``fps``, ``size``, ``crf`` or ``preset`` is invalid.
     OutputError
-        If ``path`` is an input, a folder, or exists without ``overwrite``. This is checked
-        here, before any work, and again when the file is created.
+        If ``path`` is an input, a folder, exists without ``overwrite``, or has a suffix not
+        in :data:`VIDEO_SUFFIXES`. This is checked here, before any work, and again when the
+        file is created.
 
     Attributes
     ----------
@@ -710,7 +730,7 @@ class VideoWriter:
 
         self.inputs = tuple(inputs)
         self.overwrite = bool(overwrite)
-        self.path = check_output_path(path, overwrite=self.overwrite, inputs=self.inputs)
+        self.path = check_output_path(check_video_output(path), overwrite=self.overwrite, inputs=self.inputs)
         self.fps = fps_value
         self._rate = Fraction(fps if isinstance(fps, Fraction) else fps_value).limit_denominator(10_000)
         self.size = (int(width), int(height))

@@ -26,7 +26,7 @@ from ..errors import InputError, OutputError, UsageError, require
 from ..horizon import TOLERANCE
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
-from ..io.video import probe_video
+from ..io.video import check_video_output, probe_video
 from ..road.autocamera import RoadEstimate, save_estimate
 from ..road.survey import Road
 from ..tracker import Tracker, TrackerState
@@ -327,6 +327,8 @@ def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, 
             if kind != "folder" and Path(out).resolve() == Path(table).resolve():
                 what = _TABLE_NAMES.get(fmt, f"{fmt} table")
                 raise OutputError(f"{out}: the annotated output and the {what} cannot be the same file")
+    if kind == "video" and out is not None:
+        check_video_output(out)
     written = outputs.files(kind, images)
     drawn = 0 if out is None else len(images) if kind == "folder" else 1
     for o in written[:drawn] if kind != "video" else ():
