@@ -2106,3 +2106,47 @@ def test_detect_refuses_to_write_a_video_under_another_format_s_name(tmp_path, c
     code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out", tmp_path / name, "--no-progress")
     assert code == 5 and len(err) == 1 and "written as MP4" in err[0], err
     assert list(tmp_path.iterdir()) == []
+
+
+# --- issue 45, 5 and 11: huge frame numbers in a report, values cut in messages ----------------
+
+
+def test_report_of_a_row_at_a_huge_frame_costs_what_its_rows_cost(tmp_path, capsys):
+    """Issue 45, 5: a row at frame 30,000,000 (or 2**31 - 1) ran past 300 s and 5.7 GB; the
+    boxes-per-frame chart now follows the rows, not the frame numbers."""
+    pytest.importorskip("matplotlib", reason="the HTML report needs matplotlib (the report extra)")
+    import tracemalloc
+
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x1,y1,x2,y2,track_id,score\n0,10,10,50,50,1,1.0\n30000000,10,10,50,50,1,1.0\n"
+                   f"{2**31 - 1},10,10,50,50,2,1.0\n")
+    tracemalloc.start()
+    t = time.perf_counter()
+    code, _, err = run_main(capsys, "report", csv, "--out", tmp_path / "r.html")
+    seconds, peak = time.perf_counter() - t, tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert code == 0, err
+    assert peak < 300 << 20 and seconds < 60, (peak, seconds)
+    page = (tmp_path / "r.html").read_text()
+    assert f"{2**31}" in page and "frames without any: 2147483645" in page
+
+
+@needs_media
+def test_report_refuses_rows_beyond_the_video(tmp_path, capsys):
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x1,y1,x2,y2,track_id,score\n0,10,10,50,50,1,1.0\n30000000,10,10,50,50,1,1.0\n")
+    code, _, err = run_main(capsys, "report", csv, "--video", TEST_VIDEO, "--out", tmp_path / "r.html")
+    assert code == 3 and len(err) == 1 and "a row at frame 30000000" in err[0], err
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_messages_cut_a_huge_csv_field_and_a_huge_number(tmp_path, capsys):
+    """Issue 45, 11: a 10 MB CSV field and a 400-digit number were echoed in full."""
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x1,y1,x2,y2,track_id,score\n0," + "9" * 10_000_000 + ",10,50,50,1,1.0\n")
+    code, _, err = run_main(capsys, "report", csv, "--out", tmp_path / "r.html")
+    assert code == 3 and len(err) == 1 and len(err[0]) < 200 + len(str(csv)) and "10000000 characters" in err[0], err[0][:300]
+    labels = tmp_path / "labels.json"
+    labels.write_text('{"video": null, "frames": {"0": {"cars": [[' + "1" * 400 + ', 0, 10, 10]], "ignore": []}}}')
+    code, _, err = run_main(capsys, "evaluate", "--labels", labels, "--boxes", csv)
+    assert code == 3 and len(err) == 1 and len(err[0]) < 250 + len(str(labels)) and "400 characters" in err[0], err[0][:300]

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..detections import Detections
-from ..errors import InputError
+from ..errors import InputError, shorten
 from ..geometry import MAX_COORD
 from ._files import atomic_output, read_text
 
@@ -160,7 +160,7 @@ def _parse_extra(fields: list[str], lineno: int, path: Path) -> tuple[float, ...
         elif _FLOAT.fullmatch(text):
             out.append(float(text))
         else:
-            raise InputError(f"{path}: line {lineno}: {name} {text!r} is not a number (leave it empty when unknown)")
+            raise InputError(f"{path}: line {lineno}: {name} {shorten(repr(text))} is not a number (leave it empty when unknown)")
     return tuple(out)
 
 
@@ -172,15 +172,15 @@ def _parse_line(fields: list[str], lineno: int, path: Path, header: str) -> tupl
     ints = []
     for name, text in zip(_COLUMNS[:6], fields[:6]):
         if not _INT.fullmatch(text):
-            raise InputError(f"{path}: line {lineno}: {name} {text!r} is not an integer")
-        value = int(text)
+            raise InputError(f"{path}: line {lineno}: {name} {shorten(repr(text))} is not an integer")
+        value = int(text) if len(text) <= 20 else MAX_COORD + 1  # no conversion of a 10 MB number
         if abs(value) > MAX_COORD:
-            raise InputError(f"{path}: line {lineno}: {name} {text} is out of range")
+            raise InputError(f"{path}: line {lineno}: {name} {shorten(text)} is out of range")
         ints.append(value)
     score_text = fields[6]
     score = float(score_text) if _FLOAT.fullmatch(score_text) else float("nan")
     if not np.isfinite(score):
-        raise InputError(f"{path}: line {lineno}: score {score_text!r} is not a finite number")
+        raise InputError(f"{path}: line {lineno}: score {shorten(repr(score_text))} is not a finite number")
     frame, x1, y1, x2, y2, track_id = ints
     problem = None
     if frame < 0:
@@ -229,7 +229,7 @@ def read_boxes_csv(path: str | os.PathLike) -> Detections:
     header = lines[0]
     if header not in _HEADERS:
         raise InputError(
-            f"{path}: line 1: header is {header!r}; expected {BOXES_CSV_HEADER!r} "
+            f"{path}: line 1: header is {shorten(repr(header))}; expected {BOXES_CSV_HEADER!r} "
             f"(optionally followed by ,{','.join(DISTANCE_COLUMNS)} and/or ,file)"
         )
     distances, files = _HEADERS[header]
@@ -306,14 +306,14 @@ def read_lanes_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
         lines.pop()
     if not lines or lines[0] != LANES_CSV_HEADER:
         got = repr(lines[0]) if lines else "an empty file"
-        raise InputError(f"{path}: line 1: header is {got}; expected {LANES_CSV_HEADER!r}")
+        raise InputError(f"{path}: line 1: header is {shorten(got)}; expected {LANES_CSV_HEADER!r}")
     frames, values = [], []
     for lineno, line in enumerate(lines[1:], start=2):
         fields = line.split(",")
         if len(fields) != 3:
             raise InputError(f"{path}: line {lineno}: expected 3 fields ({LANES_CSV_HEADER}), got {len(fields)}")
         if not _INT.fullmatch(fields[0]) or int(fields[0]) < 0:
-            raise InputError(f"{path}: line {lineno}: frame {fields[0]!r} is not an integer >= 0")
+            raise InputError(f"{path}: line {lineno}: frame {shorten(repr(fields[0]))} is not an integer >= 0")
         frame = int(fields[0])
         if frames and frame <= frames[-1]:
             raise InputError(f"{path}: line {lineno}: frame {frame} does not follow frame {frames[-1]}")
@@ -321,7 +321,7 @@ def read_lanes_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
         for name, text in zip(("curvature_m", "offset_m"), fields[1:]):
             value = float("nan") if text == "" else float(text) if _FLOAT.fullmatch(text) else None
             if value is None or np.isinf(value):
-                raise InputError(f"{path}: line {lineno}: {name} {text!r} is not a number (leave it empty when unknown)")
+                raise InputError(f"{path}: line {lineno}: {name} {shorten(repr(text))} is not a number (leave it empty when unknown)")
             row.append(value)
         frames.append(frame)
         values.append(row)

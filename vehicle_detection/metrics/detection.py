@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike
 
 from ..io import read_text
 from ..detections import Detections
-from ..errors import InputError
+from ..errors import InputError, shorten
 from ..geometry import MAX_COORD, as_boxes, box_area, box_intersection, box_iou, match_boxes
 
 __all__ = [
@@ -182,14 +182,14 @@ def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in pairs:
         if key in out:
-            raise ValueError(f"duplicate key {key!r}")
+            raise ValueError(f"duplicate key {shorten(repr(key))}")
         out[key] = value
     return out
 
 
 def _parse_box(value: Any, where: str, path: Path) -> list[int]:
     def fail(problem: str) -> InputError:
-        return InputError(f"{path}: {where} = {json.dumps(value)}: {problem}")
+        return InputError(f"{path}: {where} = {shorten(json.dumps(value), 80)}: {problem}")
 
     if not isinstance(value, list) or len(value) != 4:
         raise fail("a box must be a list of 4 numbers [x1, y1, x2, y2]")
@@ -198,9 +198,9 @@ def _parse_box(value: Any, where: str, path: Path) -> list[int]:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise fail(f"{name} is not a number")
         if isinstance(v, float) and not v.is_integer():
-            raise fail(f"{name} = {v} is not a whole pixel")
+            raise fail(f"{name} = {shorten(v)} is not a whole pixel")
         if v < 0 or v > MAX_COORD:
-            raise fail(f"{name} = {v} is outside 0..{MAX_COORD}")
+            raise fail(f"{name} = {shorten(v)} is outside 0..{MAX_COORD}")
         coords.append(int(v))
     x1, y1, x2, y2 = coords
     if x2 <= x1:
@@ -298,11 +298,11 @@ def load_annotations(path: str | os.PathLike) -> Annotations:
     for key, value in raw_frames.items():
         if not _FRAME_KEY.fullmatch(key):
             raise InputError(
-                f"{path}: frame key {json.dumps(key)} is not a non-negative integer "
+                f"{path}: frame key {shorten(json.dumps(key))} is not a non-negative integer "
                 "(a 0-based frame index written without sign, spaces or leading zeros)"
             )
         if len(key) > 10 or int(key) > MAX_COORD:
-            raise InputError(f"{path}: frame key {key} is beyond the largest frame index {MAX_COORD}")
+            raise InputError(f"{path}: frame key {shorten(key)} is beyond the largest frame index {MAX_COORD}")
         frames[int(key)] = _parse_frame(key, value, path)
     return Annotations(video=video, frames=dict(sorted(frames.items())), path=path, camera=camera)
 

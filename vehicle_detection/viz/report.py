@@ -24,6 +24,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from contextlib import closing
@@ -276,15 +277,28 @@ def _timeline(detections: Detections, spans: Mapping[int, np.ndarray], n_frames:
     return fig
 
 
+def _count_steps(frames: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes per frame as steps ``(values, edges)`` for ``Axes.stairs``: frame i spans
+    [i - 0.5, i + 0.5], as on the timeline; the frames without a box are runs of zero between
+    the frames with boxes, so the size follows the rows, not the frame numbers (a row at frame
+    2**31 - 1 costs what a row at frame 10 costs)."""
+    frames_with, counts = np.unique(np.asarray(frames, np.int64), return_counts=True)
+    ends = np.r_[-0.5, np.repeat(frames_with, 2) + np.tile([-0.5, 0.5], len(frames_with)), max(n_frames, 1) - 0.5]
+    values = np.zeros(len(ends) - 1, np.int64)
+    values[1::2][: len(counts)] = counts
+    keep = np.r_[True, np.diff(ends) > 0]  # drop the empty steps between neighbouring frames
+    ends, values = ends[keep], values[keep[1:]]
+    return values, ends
+
+
 def _boxes_per_frame(detections: Detections, n_frames: int):
     Figure = _figure_module().Figure
-    counts = np.bincount(detections.frame, minlength=n_frames) if len(detections) else np.zeros(n_frames, np.int64)
+    counts, edges = _count_steps(detections.frame, n_frames)
     fig = Figure(figsize=(9.0, 2.6), layout="constrained")
     ax = fig.add_subplot()
-    edges = np.arange(len(counts) + 1) - 0.5  # frame i spans [i - 0.5, i + 0.5], as on the timeline
     ax.stairs(counts, edges, fill=True, alpha=0.25, color="C0")
     ax.stairs(counts, edges, color="C0")
-    ax.set_xlim(-0.5, max(len(counts), 1) - 0.5)
+    ax.set_xlim(-0.5, max(n_frames, 1) - 0.5)
     ax.set_ylim(0, max(int(counts.max(initial=0)), 1) + 0.5)
     ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_xlabel("frame")
@@ -519,12 +533,12 @@ def _sheet_section(detections, spans, video, max_tracks: int) -> list[str]:
 
 
 def _counts_section(detections, frames) -> list[str]:
-    counts = np.bincount(detections.frame, minlength=frames) if len(detections) else np.zeros(frames, np.int64)
-    mean = f"{counts.mean():.2f}" if frames else "no"
+    mean = f"{len(detections) / frames:.2f}" if frames else "no"
+    empty = frames - len(np.unique(detections.frame))
     return [
         "<h2>Boxes per frame</h2>",
         _figure_img(_boxes_per_frame(detections, frames), "boxes per frame"),
-        f'<p class="note">{mean} boxes per frame on average; frames without any: {int((counts == 0).sum())}.</p>',
+        f'<p class="note">{mean} boxes per frame on average; frames without any: {empty}.</p>',
     ]
 
 
@@ -568,6 +582,11 @@ def render_html_report(
     _figure_module()  # fail before any decoding when matplotlib is missing
     video = Path(video) if video is not None else None
     info = probe_video(video) if video is not None else None
+    if info is not None and info.n_frames and len(detections):
+        last = int(detections.frame.max())
+        if last >= math.ceil(info.n_frames * 1.01) + 2:  # the declared count is a plausibility bound
+            raise InputError(f"{boxes_name or 'boxes'}: a row at frame {last}, but {video} has about {info.n_frames} frames; "
+                             "boxes of another video?")
     frames, frames_note = _frame_count(detections, n_frames, lane_table, info)
     spans = track_spans(detections)
     name = title or (video.name if video is not None else Path(boxes_name).name if boxes_name else "detections")
