@@ -2150,3 +2150,36 @@ def test_messages_cut_a_huge_csv_field_and_a_huge_number(tmp_path, capsys):
     labels.write_text('{"video": null, "frames": {"0": {"cars": [[' + "1" * 400 + ', 0, 10, 10]], "ignore": []}}}')
     code, _, err = run_main(capsys, "evaluate", "--labels", labels, "--boxes", csv)
     assert code == 3 and len(err) == 1 and len(err[0]) < 250 + len(str(labels)) and "400 characters" in err[0], err[0][:300]
+
+
+# --- issue 45, 5: training options and archives that declare huge sizes ------------------------
+
+
+@pytest.mark.parametrize("n", ["1000000", "9", "99999999999999999999999999"])
+def test_train_augment_beyond_the_limit_is_a_usage_error(tmp_path, capsys, n):
+    """``train --augment 1000000`` asked for 2 TiB (exit 1); now exit 2 and one line, before any work."""
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--data-dir", str(tmp_path), "--augment", n])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "from 0 to 8" in err[0] and len(err[0]) < 300
+
+
+def test_a_zip_bomb_in_place_of_the_archive_is_refused_before_inflating(tmp_path, capsys):
+    """A small ``vehicles.zip`` whose PNG member unpacks to 1 GiB reached 6.5 GB before exit 3;
+    its declared size is now read first: exit 3 naming the member, at almost no memory."""
+    import tracemalloc
+
+    data = make_data(tmp_path / "data", 12, groups=6, zipped=True)
+    with zipfile.ZipFile(data / "vehicles.zip", "a", compression=zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("vehicles/set/bomb.png", "w", force_zip64=True) as f:
+            block = bytes(1 << 20)
+            for _ in range(1024):
+                f.write(block)
+    assert (data / "vehicles.zip").stat().st_size < 5 << 20
+    tracemalloc.start()
+    code, out, err = run_main(capsys, "train", "--data-dir", data)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert code == 3 and len(err) == 1 and "vehicles/set/bomb.png unpacks to 1073741824 bytes" in err[0], err
+    assert peak < 100 << 20

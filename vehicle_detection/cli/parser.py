@@ -11,8 +11,10 @@ import math
 from .. import __version__
 from ..config import TRAFFIC
 from ..features import COLOR_SPACES, FeatureConfig
+from ..errors import shorten
 from ..io.video import X264_PRESETS
 from ..refine import REFINE_ALPHA
+from ..training.augment import MAX_COPIES
 
 __all__ = ["build_parser"]
 
@@ -27,16 +29,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"vehicle-detection: error: {message} (see '{self.prog} --help')\n")
 
 
-def _whole_number(minimum: int):
-    """An argparse type: a whole number >= ``minimum``, else a one-line usage error."""
+def _whole_number(minimum: int, maximum: int | None = None):
+    """An argparse type: a whole number from ``minimum`` (to ``maximum``), else a one-line usage error."""
 
     def parse(text: str) -> int:
         try:
-            value = int(text)
+            value = int(text) if len(text) <= 20 else None
         except ValueError:
             value = None
-        if value is None or value < minimum:
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}")
+        if value is None or value < minimum or (maximum is not None and value > maximum):
+            want = f">= {minimum}" if maximum is None else f"from {minimum} to {maximum}"
+            raise argparse.ArgumentTypeError(f"expected a whole number {want}, got {shorten(repr(text))}")
         return value
 
     return parse
@@ -156,10 +159,10 @@ def _add_train(sub) -> None:
     p.add_argument("--labels", nargs="+", default=[], metavar="L.json",
                    help="hand-labelled frames of your own cameras (the evaluate format): their cars are added as vehicle "
                    "patches, and the box refinement is learned from them. Never pass frames you score later")
-    p.add_argument("--augment", type=_count, default=0, metavar="N",
+    p.add_argument("--augment", type=_whole_number(0, MAX_COPIES), default=0, metavar="N",
                    help="add N augmented copies of each training patch (mirror, zoom, blur, gamma, contrast, brightness, "
                    "JPEG artefacts) for other cameras and light; a copy is trained on only where its source patch is "
-                   "(default %(default)s)")
+                   f"(0 to {MAX_COPIES}; default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the splits and of the augmentation")
     p.add_argument("--classifier", choices=("svm", "convnet"), default="svm",
                    help="svm: HOG features and a linear SVM, with the box refinement (the default); convnet: also a small "

@@ -30,7 +30,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-__all__ = ["AugmentConfig", "augment", "blur", "flip", "jpeg", "photometric", "scale_jitter"]
+from ..errors import shorten
+
+__all__ = ["MAX_COPIES", "AugmentConfig", "augment", "blur", "flip", "jpeg", "photometric", "scale_jitter"]
+
 
 def _is_real(value: Any) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
@@ -40,6 +43,11 @@ def _is_int(value: Any) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
+#: The most augmented copies of each patch: each copy of the archives' 17,760 patches holds
+#: about 0.7 GB of features.
+MAX_COPIES = 8
+
+
 @dataclass(frozen=True)
 class AugmentConfig:
     """How many augmented copies of each training patch to make, and how far each transform goes.
@@ -47,7 +55,7 @@ class AugmentConfig:
     Parameters
     ----------
     copies : int, default 0
-        Augmented copies per patch, >= 0 (0: no augmentation).
+        Augmented copies per patch, 0 (no augmentation) to :data:`MAX_COPIES`.
     flip : float, default 0.5
         Probability of a left-right mirror, in ``[0, 1]``.
     scale : float, default 0.05
@@ -97,8 +105,8 @@ class AugmentConfig:
     jpeg_quality: tuple[int, int] = (60, 95)
 
     def __post_init__(self) -> None:
-        if not _is_int(self.copies) or self.copies < 0:
-            raise ValueError(f"AugmentConfig.copies must be an integer >= 0; got {self.copies!r}")
+        if not _is_int(self.copies) or not 0 <= self.copies <= MAX_COPIES:
+            raise ValueError(f"AugmentConfig.copies must be an integer from 0 to {MAX_COPIES}; got {shorten(repr(self.copies))}")
         object.__setattr__(self, "copies", int(self.copies))
         rules = {
             "flip": (lambda v: 0.0 <= v <= 1.0, "a probability in [0, 1]"),

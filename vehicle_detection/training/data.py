@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, shorten
 from ..io import input_file
 from ..io.images import decode_image
 
@@ -138,6 +138,13 @@ def _file_number(name: str) -> int:
     return int(nums[-1]) if nums else 0
 
 
+#: The largest PNG member of a training archive read (the patches are 64x64 PNGs of a few KB; a
+#: 64x64 RGBA PNG stored uncompressed is under 17 KB).
+MAX_PATCH_BYTES = 1 << 20
+#: The most bytes a training archive's PNG members may unpack to (the real archives: under 70 MB each).
+MAX_ARCHIVE_BYTES = 2 << 30
+
+
 def _list_members(root: Path, cls: str, stack: contextlib.ExitStack) -> tuple[list[str], callable]:
     """Names of the PNG patches of one class and a function reading one name's bytes (an
     archive stays open until ``stack`` closes)."""
@@ -147,11 +154,21 @@ def _list_members(root: Path, cls: str, stack: contextlib.ExitStack) -> tuple[li
             zf = stack.enter_context(zipfile.ZipFile(archive))
         except (zipfile.BadZipFile, OSError) as exc:
             raise InputError(f"{archive}: not a readable zip archive ({exc}); delete it and download again") from None
-        names = [
-            n
-            for n in zf.namelist()
-            if n.lower().endswith(".png") and n.startswith(f"{cls}/") and not n.rsplit("/", 1)[-1].startswith(".")
+        infos = [
+            i
+            for i in zf.infolist()
+            if i.filename.lower().endswith(".png") and i.filename.startswith(f"{cls}/") and not i.filename.rsplit("/", 1)[-1].startswith(".")
         ]
+        # a zip bomb declares its sizes: refuse it before inflating a byte
+        big = next((i for i in infos if i.file_size > MAX_PATCH_BYTES), None)
+        if big is not None:
+            raise InputError(f"{archive}: member {shorten(big.filename)} unpacks to {big.file_size} bytes; a training patch "
+                             f"is a small PNG (at most {MAX_PATCH_BYTES} bytes): not the training archive?")
+        total = sum(i.file_size for i in infos)
+        if total > MAX_ARCHIVE_BYTES:
+            raise InputError(f"{archive}: its PNG members unpack to {total} bytes, more than {MAX_ARCHIVE_BYTES}: "
+                             "not the training archive?")
+        names = [i.filename for i in infos]
 
         def read(name, zf=zf, archive=archive):
             try:
