@@ -1131,7 +1131,7 @@ MODEL_CASES = [
     ("coef_1e300", _array("coef", 1e300), None, "array coef holds 1e+300; a model's numbers are at most 1e+09 in magnitude"),
     ("intercept_1e308", _array("intercept", 1e308), None, "array intercept holds 1e+308; a model's numbers are at most 1e+09"),
     ("scaler_mean_1e308", _array("scaler_mean", 1e308), None, "array scaler_mean holds 1e+308"),
-    ("scale_1e-300", _array("scaler_scale", 1e-300), None, "coef / scaler_scale reaches"),
+    ("scale_1e-300", _array("scaler_scale", 1e-300), None, "array scaler_scale holds 1e-300"),
     ("box_coef_1e300", _array("box_coef", 1e300), None, "array box_coef holds 1e+300"),
     ("box_coef_nan", _array("box_coef", np.nan), None, "box regressor weights must be finite"),
     ("box_coef_transposed", lambda a: a.update(box_coef=np.ascontiguousarray(a["box_coef"].T)), None, "box refinement arrays are float64 (10272, 4) and float64 (4,), expected float64 (4, 10272) and (4,)"),
@@ -2005,23 +2005,6 @@ def test_the_output_check_is_linear_in_the_number_of_outputs(tmp_path, monkeypat
 # --- issue 45: model files that declare huge sizes ---------------------------------------------
 
 
-def _signed_model(tmp_path: Path, change_meta=None, arrays_of=None) -> Path:
-    """The embedded model rewritten, its digest recomputed (a forgery the digest cannot catch)."""
-    import json
-
-    from vehicle_detection.classifier import _digest, default_model_path
-
-    with np.load(default_model_path(), allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files if k != "meta"}
-        meta = json.loads(npz["meta"].tobytes())
-    if change_meta:
-        change_meta(meta)
-    meta["sha256"] = _digest(arrays, meta)
-    model = tmp_path / "forged.npz"
-    np.savez(model, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **(arrays_of(arrays) if arrays_of else arrays))
-    return model
-
-
 def test_a_signed_model_with_thousands_of_scales_is_refused_at_once(tmp_path, capsys):
     """Issue 45, 4: 5,000 scales (a valid digest) grew to 24 GB; now exit 4 naming the limit."""
     import tracemalloc
@@ -2030,7 +2013,7 @@ def test_a_signed_model_with_thousands_of_scales_is_refused_at_once(tmp_path, ca
         scales = meta["detector_config"]["plan"]["scales"]
         meta["detector_config"]["plan"]["scales"] = (scales * 5000)[:5000]
 
-    model = _signed_model(tmp_path, many)
+    model = _signed_model(tmp_path / "forged.npz", change_meta=many)
     tracemalloc.start()
     code, _, err = run_main(capsys, "detect", TEST_IMAGES / "test1.jpg", "--model", model, "--out", tmp_path / "o.jpg")
     peak = tracemalloc.get_traced_memory()[1]
@@ -2044,7 +2027,7 @@ def test_an_array_header_declaring_a_terabyte_is_refused_before_allocation(tmp_p
     """Issue 45, 4: an ``.npy`` header claiming a shape of 10^12 ended in a MemoryError (exit 1)."""
     import zipfile
 
-    model = _signed_model(tmp_path)
+    model = _signed_model(tmp_path / "forged.npz")
     forged = tmp_path / "huge.npz"
     with zipfile.ZipFile(model) as src, zipfile.ZipFile(forged, "w") as dst:
         for info in src.infolist():
@@ -2183,3 +2166,42 @@ def test_a_zip_bomb_in_place_of_the_archive_is_refused_before_inflating(tmp_path
     tracemalloc.stop()
     assert code == 3 and len(err) == 1 and "vehicles/set/bomb.png unpacks to 1073741824 bytes" in err[0], err
     assert peak < 100 << 20
+
+
+# --- issue 45, 11: values that made libraries warn are refused in one line ---------------------
+
+
+def test_a_distance_of_1e308_is_refused_in_one_line(tmp_path, capsys):
+    """matplotlib warned of an overflow and drew nothing useful for ``distance_m`` 1e308."""
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x1,y1,x2,y2,track_id,score,distance_m,relative_speed_mps\n0,10,10,50,50,1,1.0,1e308,0\n")
+    code, _, err = run_main(capsys, "report", csv, "--out", tmp_path / "r.html")
+    assert code == 3 and len(err) == 1 and "distance_m 1e308 is beyond" in err[0], err
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_a_signed_model_with_a_subnormal_feature_scale_is_refused_in_one_line(tmp_path, capsys):
+    """numpy warned (divide, overflow) in the classifier for ``scaler_scale`` 1e-320."""
+
+    def tiny(arrays):
+        arrays["scaler_scale"] = arrays["scaler_scale"].copy()
+        arrays["scaler_scale"][0] = 1e-320
+
+    model = _signed_model(tmp_path / "tiny.npz", change_arrays=tiny)
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("error")
+        code, _, err = run_main(capsys, "detect", TEST_IMAGES / "test1.jpg", "--model", model, "--out", tmp_path / "o.jpg")
+    assert code == 4 and len(err) == 1 and "scaler_scale holds" in err[0], err
+
+
+def test_refine_alpha_too_small_to_fit_is_a_usage_error(tmp_path, capsys):
+    """scikit-learn warned "Singular matrix" for ``refine --alpha 1e-300``."""
+    with pytest.raises(SystemExit) as exc:
+        main(["refine", "--labels", str(REPO / "dev_set" / "test_images.json"), "--out", str(tmp_path / "m.npz"), "--alpha", "1e-300"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ridge penalty from 1e-06" in err[0], err
+    from vehicle_detection.refine import fit_box_regressor
+
+    with pytest.raises(ValueError, match="alpha must be"):
+        fit_box_regressor([], None, alpha=1e-300)

@@ -73,6 +73,9 @@ def _version_tuple(v: str) -> tuple[int, ...]:
 #: (trained ones stay far below: the embedded model's largest is 1,802, a feature mean); far
 #: larger ones overflow the float32 scores.
 MAX_MODEL_VALUE = 1e9
+#: Smallest feature scale (standard deviation) of a model's scaler: a trained one's is far
+#: larger; dividing by a subnormal one overflows.
+MIN_SCALER_SCALE = 1e-12
 
 
 def _implausible_weights(arrays: dict[str, np.ndarray]) -> str:
@@ -83,6 +86,9 @@ def _implausible_weights(arrays: dict[str, np.ndarray]) -> str:
             return f"array {name} holds {top:.3g}; a model's numbers are at most {MAX_MODEL_VALUE:g} in magnitude"
     if "coef" not in arrays:
         return ""
+    low = float(np.min(np.abs(arrays["scaler_scale"]))) if arrays["scaler_scale"].size else 1.0
+    if not low >= MIN_SCALER_SCALE:
+        return f"array scaler_scale holds {low:.3g}; a feature's scale is at least {MIN_SCALER_SCALE:g}"
     weights = arrays["coef"] / arrays["scaler_scale"]
     bias = float(arrays["intercept"][0] - np.dot(weights, arrays["scaler_mean"]))
     if np.max(np.abs(weights)) > MAX_MODEL_VALUE or not abs(bias) <= MAX_MODEL_VALUE:

@@ -47,6 +47,8 @@ __all__ = [
 #: (:func:`~vehicle_detection.training.with_box_refinement`, ``train --labels``, ``refine``), on
 #: standardised features.
 REFINE_ALPHA = 1e4
+#: The ridge penalties :func:`fit_box_regressor` takes.
+MIN_ALPHA, MAX_ALPHA = 1e-6, 1e12
 
 #: Largest predicted edge offset, in window sizes: a window far off its vehicle is not trusted
 #: to move further than this.
@@ -297,8 +299,8 @@ def fit_box_regressor(
     per_box : int
         Windows drawn per labelled box (:func:`jittered_windows`).
     alpha : float
-        Ridge penalty on standardised features (:data:`REFINE_ALPHA` by default, as
-        :func:`~vehicle_detection.training.with_box_refinement` has it).
+        Ridge penalty on standardised features, :data:`MIN_ALPHA` to :data:`MAX_ALPHA`
+        (:data:`REFINE_ALPHA` by default, as :func:`~vehicle_detection.training.with_box_refinement` has it).
     reference_height : int
         Frames are resized to this height first, as the search does.
     random_state : int
@@ -320,6 +322,9 @@ def fit_box_regressor(
 
     if not 0 < hot_iou <= 1:
         raise ValueError(f"hot_iou must be in (0, 1]; got {hot_iou!r}")
+    if not MIN_ALPHA <= alpha <= MAX_ALPHA:
+        raise ValueError(f"alpha must be from {MIN_ALPHA:g} to {MAX_ALPHA:g} (below, the fit's matrix is singular in "
+                         f"floating point); got {alpha!r}")
     rng = np.random.default_rng(random_state)
     feats, targets = [], []
     for frame, boxes, *hot in samples:

@@ -13,7 +13,7 @@ from ..config import TRAFFIC
 from ..features import COLOR_SPACES, FeatureConfig
 from ..errors import shorten
 from ..io.video import X264_PRESETS
-from ..refine import REFINE_ALPHA
+from ..refine import MAX_ALPHA, MIN_ALPHA, REFINE_ALPHA
 from ..training.augment import MAX_COPIES
 
 __all__ = ["build_parser"]
@@ -82,9 +82,17 @@ def _positive_float(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {shorten(repr(text))}") from None
     if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {shorten(repr(text))}")
+    return value
+
+
+def _alpha(text: str) -> float:
+    """A ridge penalty: below 1e-6 the fit's matrix is singular in floating point."""
+    value = _positive_float(text)
+    if not MIN_ALPHA <= value <= MAX_ALPHA:
+        raise argparse.ArgumentTypeError(f"expected a ridge penalty from {MIN_ALPHA:g} to {MAX_ALPHA:g}, got {shorten(text)}")
     return value
 
 
@@ -191,8 +199,8 @@ def _add_refine(sub) -> None:
     p.add_argument("--labels", required=True, nargs="+", metavar="L.json", help="annotation JSON file(s) of your camera's frames")
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="where to save the refined model")
     p.add_argument("--model", default=None, help="base model file (default: the embedded model)")
-    p.add_argument("--alpha", type=_positive_float, default=None,
-                   help=f"ridge penalty of the refinement (default: the base model's, else {REFINE_ALPHA:g})")
+    p.add_argument("--alpha", type=_alpha, default=None,
+                   help=f"ridge penalty of the refinement, {MIN_ALPHA:g} to {MAX_ALPHA:g} (default: the base model's, else {REFINE_ALPHA:g})")
     p.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=None,
                    help="also learn from the frames flipped left to right, for left-hand and right-hand traffic alike "
                         "(default: as the base model's refinement was fitted)")

@@ -55,6 +55,9 @@ __all__ = [
 BOXES_CSV_HEADER = "frame,x1,y1,x2,y2,track_id,score"
 FILES_CSV_HEADER = BOXES_CSV_HEADER + ",file"
 DISTANCE_COLUMNS = ("distance_m", "relative_speed_mps")
+#: The largest magnitude a table's distance, speed, radius or offset may have (metres, metres a
+#: second): a straight road's radius is written empty, not as 1e308, which no chart can scale to.
+MAX_METRES = 1e9
 LANES_CSV_HEADER = "frame,curvature_m,offset_m"
 _COLUMNS = tuple(BOXES_CSV_HEADER.split(","))
 _INT = re.compile(r"-?[0-9]+", re.ASCII)
@@ -157,8 +160,10 @@ def _parse_extra(fields: list[str], lineno: int, path: Path) -> tuple[float, ...
     for name, text in zip(DISTANCE_COLUMNS, fields):
         if text == "":
             out.append(float("nan"))
-        elif _FLOAT.fullmatch(text):
+        elif _FLOAT.fullmatch(text) and abs(float(text)) <= MAX_METRES:
             out.append(float(text))
+        elif _FLOAT.fullmatch(text):
+            raise InputError(f"{path}: line {lineno}: {name} {shorten(text)} is beyond {MAX_METRES:g} in magnitude")
         else:
             raise InputError(f"{path}: line {lineno}: {name} {shorten(repr(text))} is not a number (leave it empty when unknown)")
     return tuple(out)
@@ -322,6 +327,8 @@ def read_lanes_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
             value = float("nan") if text == "" else float(text) if _FLOAT.fullmatch(text) else None
             if value is None or np.isinf(value):
                 raise InputError(f"{path}: line {lineno}: {name} {shorten(repr(text))} is not a number (leave it empty when unknown)")
+            if abs(value) > MAX_METRES:
+                raise InputError(f"{path}: line {lineno}: {name} {shorten(text)} is beyond {MAX_METRES:g} in magnitude")
             row.append(value)
         frames.append(frame)
         values.append(row)
