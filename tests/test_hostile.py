@@ -1442,6 +1442,98 @@ def test_a_scheduler_gone_midway_is_named_and_leaves_nothing(tmp_path, capsys, l
     assert snapshot(out) == before
 
 
+@pytest.fixture()
+def listener():
+    """A TCP listener on a free port that answers each connection as told: ``http`` (Python's
+    HTTP server: waits for a request), ``silent`` (accepts, never replies) or ``garbage``."""
+    import socket
+    import threading
+
+    servers = []
+
+    def start(kind: str) -> str:
+        if kind == "http":
+            from http.server import HTTPServer, SimpleHTTPRequestHandler
+
+            server = HTTPServer(("127.0.0.1", 0), SimpleHTTPRequestHandler)
+            threading.Thread(target=server.serve_forever, daemon=True).start()
+            servers.append(server.shutdown)
+            return f"tcp://127.0.0.1:{server.server_address[1]}"
+        sock = socket.socket()
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        conns = []
+
+        def serve():
+            while True:
+                try:
+                    conn, _ = sock.accept()
+                except OSError:
+                    return
+                conns.append(conn)
+                if kind == "garbage":
+                    conn.sendall(b"\xff" * 64)
+
+        threading.Thread(target=serve, daemon=True).start()
+        servers.append(lambda: [c.close() for c in conns] and None or sock.close())
+        return f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+
+    yield start
+    for stop in servers:
+        stop()
+
+
+@needs_media
+@pytest.mark.parametrize("kind, words", [("http", "no dask scheduler answered within 2 s"),
+                                         ("silent", "no dask scheduler answered within 2 s"),
+                                         ("garbage", "is not a dask scheduler")])
+def test_something_else_listening_at_the_scheduler_address_is_exit_8_within_the_timeout(tmp_path, capsys, listener, kind, words):
+    """Issue 45, 8: an HTTP server or a silent listener kept the run waiting past 300 s (also with
+    --scheduler-timeout 5); garbage bytes gave exit 1."""
+    pytest.importorskip("distributed", reason="dask.distributed not installed")
+    address = listener(kind)
+    t = time.perf_counter()
+    code, _, err = run_main(capsys, "detect", TEST_VIDEO, "--out-dir", tmp_path / "o", "--scheduler", address,
+                            "--scheduler-timeout", "2")
+    assert time.perf_counter() - t < 10
+    assert code == 8 and len(err) == 1 and err[0].startswith(f"{ERROR}{address}: ") and words in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture()
+def nanny_cluster():
+    """A LocalCluster with one worker process under a nanny, dask's retries as configured by default."""
+    distributed = pytest.importorskip("distributed", reason="dask.distributed not installed")
+    cluster = distributed.LocalCluster(processes=True, n_workers=1, threads_per_worker=1, dashboard_address=None)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+@posix_only
+def test_a_worker_killed_midway_under_a_nanny_fails_its_input_at_once(tmp_path, capsys, long_video, nanny_cluster):
+    """Issue 45, 8: with dask's default retries, a worker killed with SIGKILL left the command
+    waiting (its task run again from the start, or waiting for a worker); now its input fails
+    with exit 8 within seconds of the loss, and nothing of it is written."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "long_boxes.csv").write_text("previous boxes\n")
+    before = snapshot(out)
+    [worker] = nanny_cluster.workers.values()
+    pid = worker.process.pid
+    killed = []
+    watcher = _when_partial(out, lambda: (os.kill(pid, signal.SIGKILL), killed.append(time.perf_counter())))
+    code, _, err = run_main(capsys, "detect", long_video, "--out-dir", out, "--overwrite", "--scheduler",
+                            nanny_cluster.scheduler_address, "--no-progress")
+    end = time.perf_counter()
+    watcher.join(5)
+    assert killed and end - killed[0] < 15
+    assert code == 8, err
+    assert len(err) == 1 and err[0].startswith(f"{ERROR}{long_video}: the dask worker running it (tcp://127.0.0.1:"), err
+    assert snapshot(out) == before
+
+
 # ----------------------------------------------------------------------------------------------
 # u. Every exit code the command line can return is documented (README, --help), 1 only for bugs
 # ----------------------------------------------------------------------------------------------

@@ -31,6 +31,8 @@ import multiprocessing
 import os
 import re
 import signal
+import socket
+import struct
 import time
 from collections.abc import Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, CancelledError, wait
@@ -487,7 +489,7 @@ def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, r
     try:
         if client is not None:
             with _quiet_dask(own_client is not None):
-                _run_dask(tasks, client, chunk_frames, results, report)
+                _run_dask(tasks, client, chunk_frames, results, report, timeout)
         elif jobs == 1 or len(tasks) <= 1:
             threads = None
             if jobs > 1:
@@ -557,12 +559,54 @@ def connect(address: str, timeout: float = SCHEDULER_TIMEOUT):
         raise UsageError(f"--scheduler-timeout {timeout!r}: expected a finite number of seconds > 0")
     address = scheduler_address(address)
     distributed = require("distributed", "distributed", "--scheduler")
+    _probe_scheduler(address, timeout)
     with _quiet_dask(True):
         try:
             return distributed.Client(address, timeout=timeout, set_as_default=False)
         except (OSError, TimeoutError) as exc:
             raise ClusterError(f"{address}: the dask scheduler cannot be reached (no answer within {timeout:g} s; "
                                "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)") from exc
+
+
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Refuse, within ``timeout``, a TCP address where no dask scheduler answers.
+
+    A dask scheduler greets each new connection at once with its handshake: one framed message
+    (a little-endian uint64 byte count, a uint64 frame count, the frames' lengths, msgpack).
+    Something else listening there (an HTTP server, a listener that never replies, one that
+    sends garbage) would keep ``Client`` waiting or fail deep inside it.
+    """
+    if not address.startswith("tcp://"):
+        return  # tls, ws, ucx, inproc: dask's own connection and its timeout
+    host, port = address[6:].rsplit(":", 1)
+    host = host.strip("[]")
+    deadline = time.monotonic() + timeout
+    cannot = ClusterError(f"{address}: the dask scheduler cannot be reached (no answer within {timeout:g} s; "
+                          "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)")
+    try:
+        sock = socket.create_connection((host, int(port)), timeout=timeout)
+    except OSError:
+        raise cannot from None
+    with sock:
+        head = b""
+        try:
+            while len(head) < 16:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                sock.settimeout(left)
+                chunk = sock.recv(16 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+        except OSError:
+            pass
+    if not head:
+        raise ClusterError(f"{address}: something listens there, but no dask scheduler answered within {timeout:g} s "
+                           "(a web server, or the dashboard's port? 'dask scheduler' prints its tcp:// address)")
+    size, frames = (struct.unpack("<QQ", head) if len(head) == 16 else (0, 0))
+    if not (0 < size < 1 << 24 and 0 < frames <= 64):
+        raise ClusterError(f"{address}: what answers there is not a dask scheduler (its first bytes are no dask message)")
 
 
 @contextmanager
@@ -659,10 +703,37 @@ def _run_pool(tasks: dict[int, _Task], jobs: int, results: dict, report) -> None
     pool.shutdown(wait=True)
 
 
-def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results: dict, report) -> None:
-    """One task per input on the cluster. A worker that dies fails its input (exit status 8, its
-    partial files removed); a scheduler that goes away stops the run with a :class:`ClusterError`,
-    after removing the partial files of every unfinished input."""
+class _Watch:
+    """Which worker runs which of the run's futures (polled from the scheduler), so that a worker
+    that dies fails its inputs at once, as dask's own ``KilledWorker`` does, rather than leaving
+    them to wait for a worker that may never come, or to run again from their start."""
+
+    def __init__(self, client, futures: dict, every: float = 1.0) -> None:
+        self.client, self.futures, self.every = client, futures, every
+        self.keys = {fut.key: fut for fut in futures}
+        self.running: dict[str, set] = {}  # worker address -> keys of ours it runs
+        self.last = 0.0
+
+    def dead(self) -> list[tuple[object, str]]:
+        """``(future, worker)`` of our futures whose worker has left the cluster since the last poll."""
+        if time.monotonic() - self.last < self.every:
+            return []
+        self.last = time.monotonic()
+        try:
+            processing = self.client.sync(self.client.scheduler.processing, workers=None, callback_timeout=2 * self.every)
+        except Exception:  # noqa: BLE001  (a scheduler gone is found by the futures themselves)
+            return []
+        lost = [(self.keys[key], worker) for worker, keys in self.running.items() if worker not in processing
+                for key in keys if key in self.keys and not self.keys[key].done()]
+        self.running = {w: {k for k in keys if k in self.keys} for w, keys in processing.items()}
+        return lost
+
+
+def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results: dict, report,
+              timeout: float = SCHEDULER_TIMEOUT) -> None:
+    """One task per input on the cluster. A worker that dies fails the inputs it ran (exit status
+    8, their partial files removed); a scheduler that goes away stops the run with a
+    :class:`ClusterError`, after removing the partial files of every unfinished input."""
     as_completed = require("distributed", "distributed", "--scheduler").as_completed
     futures = {}
     try:
@@ -672,20 +743,36 @@ def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results
                 report(results[k])
             else:
                 futures[client.submit(_run_task, task, pure=False)] = k
-        for fut in as_completed(list(futures), loop=client.loop):
-            k = futures[fut]
-            try:
-                results[k] = fut.result()
-            except Exception as exc:
-                lost = _cluster_failure(exc, client)
-                if lost is None:
-                    results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: task failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
-                elif isinstance(exc, CancelledError):
-                    raise lost from None
-                else:
+        watch = _Watch(client, futures)
+        pending = as_completed(list(futures), loop=client.loop)
+        while not pending.is_empty():
+            for fut, worker in watch.dead():
+                k = futures[fut]
+                if k not in results:
+                    fut.cancel()
                     _remove_partials(tasks[k])
-                    results[k] = InputResult(tasks[k].path, error=_message(tasks[k].path, lost), exit_code=lost.exit_code)
-            report(results[k])
+                    results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: the dask worker running it ({worker}) died; "
+                                             "nothing of it was written", exit_code=ClusterError.exit_code)
+                    report(results[k])
+            batch = pending.next_batch(block=False)
+            if not batch:
+                time.sleep(0.05)
+            for fut in batch:
+                k = futures[fut]
+                if k in results:  # failed above: its worker died
+                    continue
+                try:
+                    results[k] = fut.result()
+                except Exception as exc:
+                    lost = _cluster_failure(exc, client)
+                    if lost is None:
+                        results[k] = InputResult(tasks[k].path, error=f"{tasks[k].path}: task failed: {type(exc).__name__}: {one_line(exc)}", exit_code=1)
+                    elif isinstance(exc, CancelledError):
+                        raise lost from None
+                    else:
+                        _remove_partials(tasks[k])
+                        results[k] = InputResult(tasks[k].path, error=_message(tasks[k].path, lost), exit_code=lost.exit_code)
+                report(results[k])
     except ClusterError as exc:
         unfinished = [k for k in tasks if k not in results]
         for k in unfinished:
