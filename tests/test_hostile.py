@@ -2297,3 +2297,17 @@ def test_refine_alpha_too_small_to_fit_is_a_usage_error(tmp_path, capsys):
 
     with pytest.raises(ValueError, match="alpha must be"):
         fit_box_regressor([], None, alpha=1e-300)
+
+
+@needs_media
+def test_a_full_disk_under_mine_negatives_is_exit_5_leaving_no_folder(tmp_path, capsys, monkeypatch):
+    """Issue 45, 9: a full disk under ``mine-negatives --out`` was exit 1 and left an empty folder."""
+    from PIL import Image as PILImage
+
+    monkeypatch.setattr(PILImage.Image, "save", enospc)
+    out = tmp_path / "neg"
+    code, _, err = run_main(capsys, "mine-negatives", TEST_VIDEO, "--negative-region", "0,0,1280,720", "--frames", "0-3",
+                            "--out", out, "--no-progress")
+    assert code == 5, err
+    assert [line for line in err if "No space left on device" in line] == err[-1:] and err[-1].startswith(f"{ERROR}{out}"), err
+    assert not out.exists()

@@ -35,6 +35,7 @@ neighbours, which look alike) easy for the retrained model.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import os
@@ -557,6 +558,13 @@ def _new_windows(wins: Detections, crops: np.ndarray, recent: deque, seen: set, 
 # --- writing --------------------------------------------------------------------------------------
 
 
+def _remove_empty(folders) -> None:
+    """Remove the folders a failed write made, innermost first, where they are still empty."""
+    for folder in folders:
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+
+
 def write_negatives(
     mined: MinedNegatives,
     out_dir: str | os.PathLike,
@@ -600,16 +608,21 @@ def write_negatives(
         raise OutputError(f"{dest}: exists and is not a folder")
     if dest.exists() and not overwrite:
         raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
+    made = [p for p in (dest.parent, *dest.parent.parents) if not p.exists()]  # the folders made here, innermost first
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent))
     except OSError as exc:
+        _remove_empty(made)
         raise OutputError(f"{dest}: cannot write output here: {exc.strerror or exc}") from exc
     old = None
     try:
-        for fname, patch in zip(mined.file_names(), mined.patches):
-            Image.fromarray(patch).save(tmp / fname, format="PNG")
-        os.chmod(tmp, 0o777 & ~umask())
+        try:
+            for fname, patch in zip(mined.file_names(), mined.patches):
+                Image.fromarray(patch).save(tmp / fname, format="PNG")
+            os.chmod(tmp, 0o777 & ~umask())
+        except OSError as exc:  # a full disk, a quota, a read-only file system
+            raise OutputError(f"{dest}: cannot write output: {exc.strerror or exc}") from None
         if dest.exists():
             if not overwrite:
                 raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
@@ -620,6 +633,7 @@ def write_negatives(
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and (old / name).exists() and not dest.exists():
             os.replace(old / name, dest)  # put the old folder back
+        _remove_empty(made)
         raise
     finally:
         if old is not None:
