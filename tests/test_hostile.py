@@ -1534,6 +1534,32 @@ def test_a_worker_killed_midway_under_a_nanny_fails_its_input_at_once(tmp_path, 
     assert snapshot(out) == before
 
 
+@posix_only
+def test_a_scheduler_killed_midway_gives_one_line_and_no_traceback(tmp_path, long_video):
+    """Issue 45, 8: a scheduler killed mid-run gave exit 8 after a 30-line ``distributed.client``
+    traceback on stderr (dask's logging configuration gives that logger a level of its own)."""
+    pytest.importorskip("distributed", reason="dask.distributed not installed")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    scheduler = subprocess.Popen([*dask, "--port", str(port), "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1", "--no-nanny"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out = tmp_path / "o"
+    try:
+        watcher = _when_partial(out, lambda: os.kill(scheduler.pid, signal.SIGKILL))
+        proc = run_cli("detect", long_video, "--out-dir", out, "--scheduler", address, "--scheduler-timeout", "20", "--no-progress")
+        watcher.join(5)
+    finally:
+        for p in (scheduler, worker):
+            p.kill()
+            p.wait()
+    assert proc.returncode == 8, proc.stderr[-2000:]
+    assert proc.stderr.splitlines() == [f"{ERROR}{address}: the dask scheduler went away during the run (connection lost); "
+                                        "1 of 1 inputs unfinished, nothing of them written"]
+    assert not partials(tmp_path)
+
+
 # ----------------------------------------------------------------------------------------------
 # u. Every exit code the command line can return is documented (README, --help), 1 only for bugs
 # ----------------------------------------------------------------------------------------------

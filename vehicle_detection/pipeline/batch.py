@@ -611,17 +611,22 @@ def _probe_scheduler(address: str, timeout: float) -> None:
 
 @contextmanager
 def _quiet_dask(quiet: bool):
-    """dask.distributed's own log lines off (errors are reported once, on one line, by the caller)."""
+    """dask.distributed's own log lines off (errors are reported once, on one line, by the caller).
+
+    dask's logging configuration gives ``distributed.client`` and its other loggers levels of
+    their own, so each is set, not only their parent."""
     if not quiet:
         yield
         return
-    log = logging.getLogger("distributed")
-    level = log.level
-    log.setLevel(logging.CRITICAL + 1)
+    names = ["distributed", *(n for n in list(logging.root.manager.loggerDict) if n.startswith("distributed."))]
+    levels = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL + 1)
     try:
         yield
     finally:
-        log.setLevel(level)
+        for n, level in levels.items():
+            logging.getLogger(n).setLevel(level)
 
 
 def _address(client) -> str:
