@@ -166,8 +166,8 @@ CASES = {
     "missing-argument": (["detect"], 2, ["the following arguments are required: INPUT", "vehicle-detection detect --help"], [], False),
     "bad-number": (["train", "--C", "-1"], 2, ["argument --C: expected a finite number > 0, got '-1'"], [], False),
     "bad-jobs": (["sweep", "--jobs", "0"], 2, ["argument --jobs: expected a whole number >= 1, got '0'"], [], False),
-    "bad-augment": (["train", "--augment", "-1"], 2, ["argument --augment: expected a whole number >= 0, got '-1'"], [], False),
-    "augment-not-a-number": (["train", "--augment", "two"], 2, ["argument --augment: expected a whole number >= 0, got 'two'"], [], False),
+    "bad-augment": (["train", "--augment", "-1"], 2, ["argument --augment: expected a whole number from 0 to 8, got '-1'"], [], False),
+    "augment-not-a-number": (["train", "--augment", "two"], 2, ["argument --augment: expected a whole number from 0 to 8, got 'two'"], [], False),
     "bad-horizon": (["detect", "street.jpg", "--horizon", "sky"], 2,
                     ["argument --horizon: expected a fraction in [0, 1), 'auto' or 'plan', got 'sky'"], [], False),
     # 3: bad input

@@ -322,12 +322,12 @@ def test_a_side_on_car_trains_wide_windows_squeezed_to_the_patch(tmp_path):
 
 
 def test_the_network_plan_has_wide_windows_beside_the_square_ones():
-    """Wide windows (twice as wide as tall) search the same bands as the base plan's square
-    windows up to scale 4; ``wide=1`` leaves them out."""
+    """Wide windows (``wide=2``: twice as wide as tall) search the same bands as the base plan's
+    square windows up to scale 4; by default (``wide=1``) there are none."""
     from vehicle_detection.training.convnet import detector_settings
 
     base = load_default_model().detector_config
-    plan = detector_settings(base).plan
+    plan = detector_settings(base, wide=2.0).plan
     square = [(s.scale, s.y_start, s.y_stop) for s in base.plan.scales if s.scale <= 4]
     assert [(s.scale, s.y_start, s.y_stop) for s in plan.scales if s.aspect == 2.0] == square
-    assert all(s.aspect == 1.0 for s in detector_settings(base, wide=1.0).plan.scales)
+    assert all(s.aspect == 1.0 for s in detector_settings(base).plan.scales)

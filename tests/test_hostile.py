@@ -2237,7 +2237,7 @@ def test_report_refuses_rows_beyond_the_video(tmp_path, capsys):
     csv = tmp_path / "boxes.csv"
     csv.write_text("frame,x1,y1,x2,y2,track_id,score\n0,10,10,50,50,1,1.0\n30000000,10,10,50,50,1,1.0\n")
     code, _, err = run_main(capsys, "report", csv, "--video", TEST_VIDEO, "--out", tmp_path / "r.html")
-    assert code == 3 and len(err) == 1 and "a row at frame 30000000" in err[0], err
+    assert code == 3 and len(err) == 1 and "has 38 frames, but the boxes name frame 30000000" in err[0], err
     assert not (tmp_path / "r.html").exists()
 
 

@@ -426,6 +426,8 @@ def _check_declared_size(path: Path, name: str, zf: zipfile.ZipFile, info: zipfi
         except ValueError as exc:
             raise ModelError(f"{path}: array {name} has no valid .npy header: {shorten(str(exc))}") from None
         header = f.tell()
+    if dtype.hasobject:
+        raise ModelError(f"{path}: unreadable model file: array {name} holds Python objects (pickled data), which are never loaded")
     declared = math.prod(shape) * dtype.itemsize
     if declared + header != info.file_size:
         raise ModelError(f"{path}: array {name} declares shape {shorten(str(shape))} ({declared} bytes) but holds "

@@ -7,9 +7,10 @@ cameras, windows cut as the search cuts them (the frame resized to the plan's re
 
 * **cars**: square windows jittered around each labelled car (side 0.8 to 1.4 times its larger
   dimension, centre moved by up to 0.15 sides), kept where their IoU with the car is at least
-  0.45, each with the edge offsets that move it onto the car (the box head's targets); a car
-  at least ``wide_from`` times as wide as tall (seen side-on or at an angle) also gets windows
-  ``wide`` times as wide as tall, jittered alike: the search's wide windows, squeezed to 64x64;
+  0.45, each with the edge offsets that move it onto the car (the box head's targets); with
+  ``wide`` > 1, a car at least ``wide_from`` times as wide as tall (seen side-on or at an angle)
+  also gets windows ``wide`` times as wide as tall, jittered alike: the search's wide windows,
+  squeezed to 64x64 (measured, not shipped: writeup 3.6);
 * **background**: windows of the search's sizes and shapes anywhere below the top fifth of the
   frame that overlap no car (IoU < 0.2) and lie mostly outside every ``ignore`` box;
 * **hard background**, in later rounds: the windows of the training frames the previous round's
@@ -56,7 +57,7 @@ class ConvNetTraining:
     negatives_per_frame : int
         Background windows drawn in each labelled frame.
     wide : float
-        Width over height of the wide windows (1: none).
+        Width over height of the wide windows (1: none, the shipped model's setting).
     wide_from : float
         Cars at least this wide for their height train the wide windows too.
     seed : int
@@ -71,7 +72,7 @@ class ConvNetTraining:
     box_weight: float = 4.0
     per_car: int = 24
     negatives_per_frame: int = 100
-    wide: float = 2.0
+    wide: float = 1.0
     wide_from: float = 1.3
     seed: int = 0
     threads: int = 2
@@ -140,7 +141,7 @@ def frame_samples(annotations: Sequence[Annotations], config: ConvNetTraining, *
                     offs.append(edge_offsets(jit[good], np.repeat(car[None], good.sum(), 0)))
             n_pos = sum(len(x) for x in wins)
             side = np.exp(rng.uniform(np.log(40), np.log(min(330, h * 0.9)), config.negatives_per_frame * 2))
-            width = side * np.where(rng.random(len(side)) < (1 / 3 if config.wide > 1 else 0), config.wide, 1.0)
+            width = side * np.where(rng.random(len(side)) < 1 / 3, config.wide, 1.0) if config.wide > 1 else side
             x0 = rng.uniform(-0.3, 1.0, len(side)) * w - width * 0.35
             y0 = rng.uniform(0.2 * h, h - side * 0.6)
             neg = np.stack([x0, y0, x0 + width, y0 + side], axis=1)
@@ -208,7 +209,7 @@ CANDIDATES = (0.19, 0.27, 0.35, 0.43, 0.51, 0.59, 0.67)
 
 
 def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDATES, small: bool = True, large: bool = True,
-                      wide: float = 2.0):
+                      wide: float = 1.0):
     """The detector settings of a network model, from the SVM model's (``base``, a
     :class:`~vehicle_detection.config.DetectorConfig`).
 
@@ -435,11 +436,13 @@ def with_convnet(model, patches, annotations: Sequence[Annotations], config: Con
     t = time.perf_counter()
     data = samples_from([patches]).concatenate(frame_samples(annotations, config))
     settings = detector_settings(model.detector_config, wide=config.wide)
+    # hard negatives are mined at the base plan's scales (and the wide windows' where there are any)
+    mining = detector_settings(model.detector_config, small=False, large=False, wide=config.wide).plan
     record = {}
     net, hard = None, 0
     for r in range(rounds):
         if r:
-            extra = hard_windows(net, annotations, settings.plan)
+            extra = hard_windows(net, annotations, mining)
             data = data.concatenate(extra)
             hard += len(extra)
             if progress:

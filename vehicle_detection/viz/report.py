@@ -24,7 +24,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from contextlib import closing
@@ -582,11 +581,6 @@ def render_html_report(
     _figure_module()  # fail before any decoding when matplotlib is missing
     video = Path(video) if video is not None else None
     info = probe_video(video) if video is not None else None
-    if info is not None and info.n_frames and len(detections):
-        last = int(detections.frame.max())
-        if last >= math.ceil(info.n_frames * 1.01) + 2:  # the declared count is a plausibility bound
-            raise InputError(f"{boxes_name or 'boxes'}: a row at frame {last}, but {video} has about {info.n_frames} frames; "
-                             "boxes of another video?")
     frames, frames_note = _frame_count(detections, n_frames, lane_table, info)
     spans = track_spans(detections)
     name = title or (video.name if video is not None else Path(boxes_name).name if boxes_name else "detections")
