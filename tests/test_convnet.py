@@ -331,3 +331,18 @@ def test_the_network_plan_has_wide_windows_beside_the_square_ones():
     square = [(s.scale, s.y_start, s.y_stop) for s in base.plan.scales if s.scale <= 4]
     assert [(s.scale, s.y_start, s.y_stop) for s in plan.scales if s.aspect == 2.0] == square
     assert all(s.aspect == 1.0 for s in detector_settings(base).plan.scales)
+
+
+def test_the_network_model_turns_heat_into_boxes_as_the_box_refinement_does():
+    """The network's windows carry their own boxes, as the box refinement's do: the same
+    clustering and voting (the leave-one-camera-out folds and the shipped model alike; once the
+    shipped model had the plain heat boxes of an unrefined model, and its boxes fitted loosely)."""
+    from vehicle_detection.classifier import load_model
+    from vehicle_detection.config import DetectorConfig
+    from vehicle_detection.training.convnet import detector_settings
+    from vehicle_detection.training.fit import BOX_VOTE, CLUSTER_IOU
+
+    tracker = detector_settings(DetectorConfig()).tracker
+    assert (tracker.cluster_iou, tracker.box_vote, tracker.window_inset) == (CLUSTER_IOU, BOX_VOTE, (0.0, 0.0, 0.0, 0.0))
+    assert load_model("convnet").detector_config.tracker == tracker
+    assert load_model("svm").detector_config.tracker == tracker  # the refined SVM's, for the same reason

@@ -34,6 +34,7 @@ from ..errors import require
 from ..geometry import box_iou
 from ..metrics.detection import Annotations
 from ..refine import crop_windows, edge_offsets, jittered_windows, working_frame
+from .fit import boxed_windows_tracker
 from .mining import _fraction_inside, labelled_frames
 
 __all__ = ["ConvNetTraining", "FrameSamples", "detector_settings", "export", "fit_convnet", "frame_samples", "hard_windows", "network", "samples_from", "with_convnet"]
@@ -219,7 +220,10 @@ def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDAT
     scales up to 4 (windows 64 to 256 pixels tall) windows ``wide`` times as wide as tall, for
     cars seen side-on or at an angle (``wide=1``: none). The SVM's two-stage search does not
     apply (the network scores a band in one pass). Bands that reach the frame's bottom keep
-    reaching it when a high horizon moves the bands up (:attr:`SearchPlan.reach_bottom`).
+    reaching it when a high horizon moves the bands up (:attr:`SearchPlan.reach_bottom`). The
+    windows carry the network's boxes, so the heat becomes boxes as the box refinement's do
+    (:func:`~vehicle_detection.training.fit.boxed_windows_tracker`: blobs split by their boxes'
+    clusters, boxes voted).
     """
     from ..search import SearchScale
 
@@ -233,7 +237,7 @@ def detector_settings(base, *, threshold: float = THRESHOLD, candidates=CANDIDAT
         scales.append(SearchScale(6.0, 336, 720, step=1))
     plan = dataclasses.replace(plan, scales=tuple(scales), threshold=float(threshold), coarse_margin=None, reach_bottom=True)
     cars = dataclasses.replace(base.car_horizon, candidates=tuple(candidates), min_margin=float(threshold) + 1.0)
-    return base.replace(plan=plan, car_horizon=cars)
+    return base.replace(plan=plan, car_horizon=cars, tracker=boxed_windows_tracker(base.tracker))
 
 
 def _halve(patches: np.ndarray) -> np.ndarray:

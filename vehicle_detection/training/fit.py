@@ -197,8 +197,21 @@ def _searched_frames(model: VehicleClassifier, annotations, flip: bool = False) 
             yield frame, labels.cars, detector.windows(frame).xyxy if len(labels.cars) else np.zeros((0, 4), np.int64)
 
 
+#: How the heat of windows that carry their own boxes (the box refinement's, or the network's edge
+#: offsets) becomes one box per vehicle: blobs split where their windows' boxes form clusters at
+#: this IoU, and each box moved this far towards the mean of its windows' boxes.
+CLUSTER_IOU, BOX_VOTE = 0.3, 0.5
+
+
+def boxed_windows_tracker(tracker, *, cluster_iou: float = CLUSTER_IOU, box_vote: float = BOX_VOTE):
+    """``tracker`` (a :class:`~vehicle_detection.tracker.TrackerConfig`) for windows that carry
+    their own boxes: heat on each box as it is (no fixed window inset), blobs split at
+    ``cluster_iou``, boxes voted ``box_vote`` of the way to their windows' mean box."""
+    return dataclasses.replace(tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote)
+
+
 def with_box_refinement(
-    model: VehicleClassifier, annotations, *, alpha: float = REFINE_ALPHA, cluster_iou: float = 0.3, box_vote: float = 0.5,
+    model: VehicleClassifier, annotations, *, alpha: float = REFINE_ALPHA, cluster_iou: float = CLUSTER_IOU, box_vote: float = BOX_VOTE,
     hot_iou: float | None = 0.5, mirror: bool = False, traffic: str | None = None,
 ) -> VehicleClassifier:
     """``model`` with a box refinement learned from labelled frames (:mod:`~vehicle_detection.refine`).
@@ -236,7 +249,7 @@ def with_box_refinement(
     if hot_iou is not None and not 0 < hot_iou <= 1:
         raise ValueError(f"hot_iou must be in (0, 1] or None; got {hot_iou!r}")
     cfg = model.detector_config
-    cfg = cfg.replace(tracker=dataclasses.replace(cfg.tracker, window_inset=(0.0, 0.0, 0.0, 0.0), cluster_iou=cluster_iou, box_vote=box_vote),
+    cfg = cfg.replace(tracker=boxed_windows_tracker(cfg.tracker, cluster_iou=cluster_iou, box_vote=box_vote),
                       traffic=cfg.traffic if traffic is None else traffic)
     flip = cfg.traffic == "left"
     t = time.perf_counter()
