@@ -15,6 +15,9 @@ from vehicle_detection.training.fit import split_indices, sweep, sweep_configs, 
 from vehicle_detection.errors import InputError, ModelError, OutputError
 from vehicle_detection.features import FEATURE_FORMAT, FeatureConfig, extract_features
 
+# the training archives are loaded once a worker (session fixtures): their tests share one
+pytestmark = pytest.mark.xdist_group("archives")
+
 ARRAYS = ("scaler_mean", "scaler_scale", "coef", "intercept")
 
 

@@ -237,6 +237,7 @@ def error_runs(files):
     return results, before, after, listing, sorted(p.name for p in d.iterdir())
 
 
+@pytest.mark.xdist_group("cli-error-runs")  # one worker runs every case's subprocess, once
 @pytest.mark.parametrize("name", list(CASES))
 def test_error_path(name, error_runs, files):
     results, before, after, _, _ = error_runs

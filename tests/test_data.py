@@ -15,6 +15,9 @@ from PIL import Image
 from vehicle_detection.training.data import DATA_ENV, default_data_dir, find_duplicates, load_dataset
 from vehicle_detection.errors import InputError
 
+# the training archives are loaded once a worker (session fixtures): their tests share one
+pytestmark = pytest.mark.xdist_group("archives")
+
 # From the data README (and the Udacity project description).
 EXPECTED_COUNTS = {
     "vehicles/GTI_Far": 834,
