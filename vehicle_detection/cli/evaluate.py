@@ -67,6 +67,7 @@ def _check_fit(labels, found, source: Path, boxes_csv) -> None:
     if source.is_dir():
         images = list_images(source)
         n, sizes = len(images), {}
+        count = str(n)
         for i in labels.frames:
             if i < n:
                 sizes[i] = image_size(images[i])
@@ -74,16 +75,15 @@ def _check_fit(labels, found, source: Path, boxes_csv) -> None:
         info = probe_video(source)
         # the container's count is a plausibility bound (an edit list can hide a few frames)
         n = None if info.n_frames is None else math.ceil(info.n_frames * 1.01) + 2
+        count = f"about {info.n_frames}"
         sizes = dict.fromkeys(labels.frames, (info.width, info.height))
     if n is not None:
         beyond = sorted(i for i in labels.frames if i >= n)
         if beyond:
-            raise InputError(f"{labels.path}: labels frame {beyond[0]}, but {source} has {n if source.is_dir() else 'about ' + str(info.n_frames)} "
-                             "frames; wrong video or labels?")
+            raise InputError(f"{labels.path}: labels frame {beyond[0]}, but {source} has {count} frames; wrong video or labels?")
         rows = np.asarray(found.frame)
         if rows.size and rows.max() >= n:
-            raise InputError(f"{boxes_csv}: a row at frame {int(rows.max())}, but {source} has "
-                             f"{n if source.is_dir() else 'about ' + str(info.n_frames)} frames; boxes of another video?")
+            raise InputError(f"{boxes_csv}: a row at frame {int(rows.max())}, but {source} has {count} frames; boxes of another video?")
     for i, (w, h) in sizes.items():
         check_boxes_inside(labels, w, h, frames=[i], source=source)
 

@@ -184,7 +184,7 @@ def _refuse_over_inputs(dest: Path, inputs: _Inputs) -> None:
         with suppress(OSError):
             st = os.stat(key)
             src = inputs.inodes.get((st.st_dev, st.st_ino))
-    if src is not None and src.resolve() not in inputs.folders:
+    if src is not None and key not in inputs.folders:
         raise OutputError(f"{dest}: output would overwrite the input {src}; choose another output path")
     if inputs.folders:
         for parent in (key, *key.parents):

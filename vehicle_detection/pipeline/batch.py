@@ -489,7 +489,7 @@ def _run(tasks: dict[int, _Task], jobs: int, client, chunk_frames: int | None, r
     try:
         if client is not None:
             with _quiet_dask(own_client is not None):
-                _run_dask(tasks, client, chunk_frames, results, report, timeout)
+                _run_dask(tasks, client, chunk_frames, results, report)
         elif jobs == 1 or len(tasks) <= 1:
             threads = None
             if jobs > 1:
@@ -564,8 +564,12 @@ def connect(address: str, timeout: float = SCHEDULER_TIMEOUT):
         try:
             return distributed.Client(address, timeout=timeout, set_as_default=False)
         except (OSError, TimeoutError) as exc:
-            raise ClusterError(f"{address}: the dask scheduler cannot be reached (no answer within {timeout:g} s; "
-                               "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)") from exc
+            raise _unreachable(address, timeout) from exc
+
+
+def _unreachable(address: str, timeout: float) -> ClusterError:
+    return ClusterError(f"{address}: the dask scheduler cannot be reached (no answer within {timeout:g} s; "
+                        "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)")
 
 
 def _probe_scheduler(address: str, timeout: float) -> None:
@@ -581,12 +585,10 @@ def _probe_scheduler(address: str, timeout: float) -> None:
     host, port = address[6:].rsplit(":", 1)
     host = host.strip("[]")
     deadline = time.monotonic() + timeout
-    cannot = ClusterError(f"{address}: the dask scheduler cannot be reached (no answer within {timeout:g} s; "
-                          "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)")
     try:
         sock = socket.create_connection((host, int(port)), timeout=timeout)
     except OSError:
-        raise cannot from None
+        raise _unreachable(address, timeout) from None
     with sock:
         head = b""
         try:
@@ -714,7 +716,7 @@ class _Watch:
     them to wait for a worker that may never come, or to run again from their start."""
 
     def __init__(self, client, futures: dict, every: float = 1.0) -> None:
-        self.client, self.futures, self.every = client, futures, every
+        self.client, self.every = client, every
         self.keys = {fut.key: fut for fut in futures}
         self.running: dict[str, set] = {}  # worker address -> keys of ours it runs
         self.last = 0.0
@@ -734,8 +736,7 @@ class _Watch:
         return lost
 
 
-def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results: dict, report,
-              timeout: float = SCHEDULER_TIMEOUT) -> None:
+def _run_dask(tasks: dict[int, _Task], client, chunk_frames: int | None, results: dict, report) -> None:
     """One task per input on the cluster. A worker that dies fails the inputs it ran (exit status
     8, their partial files removed); a scheduler that goes away stops the run with a
     :class:`ClusterError`, after removing the partial files of every unfinished input."""
