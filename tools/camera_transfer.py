@@ -1,4 +1,4 @@
-"""Leave one camera out: train on one dev camera's data, score on both cameras' tune frames (writeup 3.4).
+"""Leave one camera out: train on one dev camera's data, score on both cameras' tune frames (docs/experiments.md, "Features and augmentation for a camera no labels come from").
 
     python tools/camera_transfer.py [--data-dir ../shared/data] [--negatives data/negatives]
                                     [--variant NAME=TRAIN_ARGS]...

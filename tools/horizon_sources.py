@@ -1,4 +1,4 @@
-"""The horizon each source gives, clip by clip: the road's lines and the cars (writeup 3.4, "The horizon from the cars").
+"""The horizon each source gives, clip by clip: the road's lines and the cars (docs/experiments.md, "The horizon from the cars").
 
     python tools/horizon_sources.py [OC_DIR] [--margins M [M ...]]
 

@@ -1,4 +1,4 @@
-"""Score variants of the embedded model, camera by camera (writeup 3.4's tables).
+"""Score variants of the embedded model, camera by camera (the tables of docs/experiments.md).
 
     python tools/model_variants.py VARIANT [VARIANT ...] [--group NAME LABELS [LABELS ...]]...
 

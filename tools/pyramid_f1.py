@@ -1,4 +1,4 @@
-"""Dev-set F1 with scales 1.5 and 3 taken from a shared pyramid's octaves (writeup 2.3).
+"""Dev-set F1 with scales 1.5 and 3 taken from a shared pyramid's octaves (docs/experiments.md, "One gradient pass shared by all scales").
 
     python tools/pyramid_f1.py [--shift S15 S3] [--control]
 

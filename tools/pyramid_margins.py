@@ -1,4 +1,4 @@
-"""What sharing the image pyramid between scales would do to the SVM's margins (writeup 2.3).
+"""What sharing the image pyramid between scales would do to the SVM's margins (docs/experiments.md, "One gradient pass shared by all scales").
 
     python tools/pyramid_margins.py [IMAGE_OR_VIDEO ...] [--frames N]
 

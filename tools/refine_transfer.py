@@ -1,4 +1,4 @@
-"""How a box refinement fitted on one camera's frames moves the windows of another camera (writeup 3.4).
+"""How a box refinement fitted on one camera's frames moves the windows of another camera (docs/experiments.md, "A stronger ridge penalty").
 
     python tools/refine_transfer.py [--alpha A [A ...]]
 

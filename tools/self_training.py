@@ -1,4 +1,4 @@
-"""Self-training on a camera no labels come from: the detector's own tracks as its labels (writeup 3.4).
+"""Self-training on a camera no labels come from: the detector's own tracks as its labels (docs/experiments.md, "Self-training").
 
     python tools/self_training.py [--data-dir ../shared/data] [--negatives data/negatives]
                                   [--rounds 10 40] [--stride 7]

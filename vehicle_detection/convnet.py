@@ -1,7 +1,7 @@
 """A small convolutional network that scores the sliding-window search's windows, in NumPy.
 
 The linear SVM over HOG features learns the cameras it is shown; a few convolutions learned from
-many cameras' cars carry over better (writeup 3.5). The network here scores exactly the windows
+many cameras' cars carry over better (writeup 3.6). The network here scores exactly the windows
 of the search plan (:mod:`~vehicle_detection.search`): it is fully convolutional, so one pass
 over a scale's resized band scores every window of the band at once, as the HOG search shares
 its cells between windows.

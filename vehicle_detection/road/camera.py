@@ -67,8 +67,8 @@ def find_chessboard(image: np.ndarray, pattern: tuple[int, int] = (9, 6)) -> np.
     """Inner corners of a whole chessboard, to sub-pixel accuracy.
 
     Uses OpenCV's sector-based detector (``cv2.findChessboardCornersSB`` with
-    ``CALIB_CB_ACCURACY``), which locates each corner to a fraction of a pixel itself (see the
-    writeup for how it compares with ``findChessboardCorners`` and ``cornerSubPix``).
+    ``CALIB_CB_ACCURACY``), which locates each corner to a fraction of a pixel itself (see
+    docs/experiments.md, "Calibration", for how it compares with ``findChessboardCorners`` and ``cornerSubPix``).
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ cameras, windows cut as the search cuts them (the frame resized to the plan's re
   0.45, each with the edge offsets that move it onto the car (the box head's targets); with
   ``wide`` > 1, a car at least ``wide_from`` times as wide as tall (seen side-on or at an angle)
   also gets windows ``wide`` times as wide as tall, jittered alike: the search's wide windows,
-  squeezed to 64x64 (measured, not shipped: writeup 3.6);
+  squeezed to 64x64 (measured, not shipped: docs/experiments.md, "Wide windows");
 * **background**: windows of the search's sizes and shapes anywhere below the top fifth of the
   frame that overlap no car (IoU < 0.2) and lie mostly outside every ``ignore`` box;
 * **hard background**, in later rounds: the windows of the training frames the previous round's
