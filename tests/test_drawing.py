@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vehicle_detection.detections import Detections
-from vehicle_detection.viz.drawing import draw_boxes, draw_detections
+from vehicle_detection.viz.drawing import draw_boxes, draw_detections, place_labels
 
 
 def _image(h=60, w=80, value=50):
@@ -147,3 +147,57 @@ def test_draw_refuses_a_bad_out(make):
     image = _image()
     with pytest.raises(ValueError, match="out must be"):
         draw_boxes(image, [[1, 1, 5, 5]], out=make(image))
+
+
+# --- labels of neighbouring cars --------------------------------------------------------------------
+
+#: Neighbouring cars of a 640x360 frame: two side by side with their tops level, one just below
+#: them, one against the right edge, one against the top edge.
+CROWD = [[100, 120, 160, 170], [126, 120, 186, 170], [110, 150, 170, 200], [600, 60, 640, 100], [300, 0, 360, 40]]
+CROWD_LABELS = ["car 1 21 m", "car 17 25 m", "car 3 12 m", "car 22 40 m", "car 5 60 m"]
+
+
+def _disjoint(rects) -> bool:
+    r = np.asarray(rects)
+    apart = ((r[:, None, 2] <= r[None, :, 0]) | (r[None, :, 2] <= r[:, None, 0])
+             | (r[:, None, 3] <= r[None, :, 1]) | (r[None, :, 3] <= r[:, None, 1]))
+    np.fill_diagonal(apart, True)
+    return bool(apart.all())
+
+
+def test_place_labels_keeps_tags_apart_inside_the_frame_and_near_their_boxes():
+    sizes = [[90, 22]] * len(CROWD)
+    rects, shown = place_labels(CROWD, sizes, (360, 640))
+    assert shown.all()
+    assert _disjoint(rects)
+    assert (rects[:, :2] >= 0).all() and (rects[:, 2] <= 640).all() and (rects[:, 3] <= 360).all()
+    assert (rects[:, 2:] - rects[:, :2] == sizes).all()  # no tag shrunk
+    assert rects[2].tolist() == [110, 128, 200, 150]  # the nearest car's tag: its place of choice, above its box
+    # a lone box gets its tag above its top-left corner; one at the top edge, inside its box
+    assert place_labels([[10, 40, 60, 80]], [[40, 12]], (100, 100))[0].tolist() == [[10, 28, 50, 40]]
+    assert place_labels([[10, 0, 60, 80]], [[40, 12]], (100, 100))[0].tolist() == [[10, 0, 50, 12]]
+
+
+def test_place_labels_leaves_out_what_fits_nowhere():
+    rects, shown = place_labels([[0, 0, 10, 10]] * 4, [[30, 10], [30, 10], [30, 10], [200, 10]], (21, 40))
+    assert shown.tolist() == [True, True, False, False]  # two rows of tags, 1 pixel apart, fill the frame; the last is wider than it
+    assert _disjoint(rects[shown])
+    with pytest.raises(ValueError):
+        place_labels([[0, 0, 10, 10]], [[5, 5], [5, 5]], (20, 20))
+
+
+def _ink(image: np.ndarray) -> int:
+    """Pixels of label text: neither the white frame nor the green of the boxes and tags."""
+    return int((np.abs(image.astype(int) - [0, 255, 0]).sum(axis=2) > 30).sum() - (image == 255).all(axis=2).sum())
+
+
+def test_drawn_labels_of_neighbouring_cars_are_whole():
+    # "car 1 21 m" used to be cut to "ar 1 21 m" under its neighbour's tag, and a tag at the right
+    # edge ran out of the frame: every label's text must be drawn whole.
+    frame = np.full((360, 640, 3), 255, np.uint8)
+    drawn = draw_boxes(frame, CROWD, thickness=1, labels=CROWD_LABELS)
+    alone = 0
+    for label in CROWD_LABELS:  # each label on its own, in the middle of a large frame
+        big = np.full((400, 800, 3), 255, np.uint8)
+        alone += _ink(draw_boxes(big, [[350, 200, 450, 260]], thickness=1, labels=[label]))
+    assert _ink(drawn) == alone

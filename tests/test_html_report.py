@@ -207,6 +207,74 @@ def test_report_without_matplotlib_names_the_extra():
     assert issubclass(MissingDependencyError, ImportError) and MissingDependencyError.exit_code == 2
 
 
+# --- readable on any run: many tracks, cuts, ids, coasted boxes ----------------------------------------
+
+
+def many_tracks(n: int = 31, every: int = 6) -> Detections:
+    """``n`` tracks of 3 to 8 boxes each, a track every ``every`` frames, with distances; ids with gaps (0, 1, 3, 4, 6, ...)."""
+    ids = [k + k // 2 for k in range(n)]
+    rows = [(k * every + j, tid, 40.0 - j - k % 7) for k, tid in enumerate(ids) for j in range(3 + k % 6)]
+    frames, tids, dist = (list(c) for c in zip(*rows))
+    return Detections([[10, 10, 50, 40]] * len(rows), score=np.arange(len(rows), dtype=float), track_id=tids, frame=frames,
+                      data={"distance_m": dist, "relative_speed_mps": np.zeros(len(rows))})
+
+
+@needs_matplotlib
+def test_report_labels_every_distance_line_and_marks_the_cuts():
+    from vehicle_detection.viz import report
+
+    d = many_tracks()
+    spans = track_spans(d)
+    page = render_html_report(d, n_frames=200, cuts=[63, 150])
+    assert "<tr><td>cuts between shots</td><td>2: frames 63, 150 (dashed lines on the charts)</td></tr>" in page
+    assert "each line is labelled with its track id at its end (car 0, car 1, car 3, " in page
+    fig = report._distances(d, spans, 200, [63, 150])
+    ax = fig.axes[0]
+    assert sorted(t.get_gid() for t in ax.texts) == sorted(f"track-{t}" for t in spans)  # every line, not 12 at most
+    assert [t.get_text() for t in ax.texts] == [str(t) for t in spans]
+    for figure in (fig, report._timeline(d, spans, 200, [63, 150]), report._boxes_per_frame(d, 200, [63, 150])):
+        cuts = [line for line in figure.axes[0].lines if (line.get_gid() or "").startswith("cut-")]
+        assert [line.get_xdata()[0] for line in cuts] == [62.5, 149.5]
+    assert "cuts between shots" not in render_html_report(d, n_frames=200)  # no video, none given: nothing said
+
+
+@needs_matplotlib
+def test_report_says_which_ids_it_counts():
+    page = render_html_report(many_tracks(), n_frames=200)
+    # 31 tracks with ids 0 to 45: the count agrees with the ids shown, and says why some are missing
+    assert "<td>vehicles tracked</td><td>31 (ids 0 to 45: the tracker numbers every candidate, and 15 candidates were never " \
+           "confirmed as vehicles)</td>" in page
+    assert len(set(re.findall(r"<td>car (\d+)</td>", page))) == 31
+    assert "<td>vehicles tracked</td><td>2 (ids 1 to 2)</td>" in render_html_report(two_tracks().replace(
+        track_id=np.where(two_tracks().track_id == 4, 2, 1)))
+
+
+@needs_matplotlib
+def test_contact_sheet_shows_matched_boxes_not_coasted_ones(grey_video):
+    # Track 3: frames 2 and 3 back-filled at its confirmation in frame 4 (the same score), matched
+    # to frame 10, then coasting on its predicted box (the score of frame 10) to frame 14.
+    frames = list(range(2, 15))
+    score = [7.0, 7.0, 7.0] + [8.0 + f for f in range(5, 11)] + [18.0] * 4
+    d = Detections([[10, 10, 50, 40]] * len(frames), score=score, track_id=3, frame=frames)
+    page = render_html_report(d, video=grey_video)
+    assert [int(c) for c in re.findall(r"<figcaption>frame (\d+),", page)] == [2, 6, 10]
+    crops = [np.asarray(Image.open(io.BytesIO(raw))) for kind, raw in data_uris(page) if kind == "jpeg"]
+    assert abs(crops[-1].mean() - grey_level(10)) < 3  # the last tile: frame 10's box
+
+
+@needs_matplotlib
+def test_report_finds_the_cuts_in_the_video(tmp_path):
+    frames = []
+    for i in range(N_FRAMES):  # one shot bright on the left, the next bright on the right
+        frame = np.full((96, 160, 3), 30, np.uint8)
+        (frame[:, :80] if i < 17 else frame[:, 80:])[:] = 200
+        frames.append(frame)
+    video = media.encode(tmp_path / "cut.mp4", frames)
+    page = render_html_report(Detections([[0, 0, 9, 9]], track_id=[1], frame=[3]), video=video)
+    assert "<td>cuts between shots</td><td>1: frame 17, found in the video (dashed lines on the charts)</td>" in page
+    assert "<td>cuts between shots</td><td>none</td>" in render_html_report(Detections.empty(tracked=True), video=video, cuts=[])
+
+
 # --- in a real browser ----------------------------------------------------------------------------
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")

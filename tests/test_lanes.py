@@ -13,6 +13,7 @@ from vehicle_detection.detections import Detections
 from vehicle_detection.road.distance import DistanceTracker
 from vehicle_detection.road.lanes import (
     BirdsEye,
+    Lane,
     LaneTracker,
     birds_eye_from_straight,
     draw_lane,
@@ -301,3 +302,57 @@ def test_no_lane_is_carried_across_a_cut_between_shots():
     one_shot = Road(lanes=True, birds_eye=identity_view()).survey(25)
     kept = [one_shot.find_lane(f) for f in frames][4:]
     assert all(lane is not None and not lane.fresh for lane in kept)
+
+
+# --- the lane and its caption drawn on other cameras' frames ----------------------------------------
+
+BAR = 80  # pillarbox bars of a 640x360 frame holding a 480x360 picture
+
+
+def frame_of(kind: str) -> np.ndarray:
+    """A bright, a dark, a dusk (bright sky over a dark road) or a pillarboxed (black bars around a bright picture) frame."""
+    frame = np.full((H, W, 3), {"bright": 255, "dark": 0, "dusk": 40, "pillarboxed": 235}[kind], np.uint8)
+    if kind == "dusk":
+        frame[: H // 2] = (235, 225, 210)
+    if kind == "pillarboxed":
+        frame[:, :BAR] = frame[:, W - BAR :] = 0
+    return frame
+
+
+def wide_lane() -> Lane:
+    """A lane from x = 20 to x = 620 over the whole identity view: into any pillarbox bars."""
+    return Lane(np.array([0.0, 0.0, 20.0]), np.array([0.0, 0.0, 620.0]), 850.0, -0.21, True)
+
+
+def luminance(rgb) -> np.ndarray:
+    """WCAG relative luminance of sRGB uint8 values (..., 3)."""
+    c = np.asarray(rgb, np.float64) / 255
+    c = np.where(c <= 0.03928, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return c @ [0.2126, 0.7152, 0.0722]
+
+
+@pytest.mark.parametrize("kind", ["bright", "dark", "dusk", "pillarboxed"])
+@pytest.mark.parametrize("found", [True, False])
+def test_lane_caption_reads_on_any_frame(kind, found):
+    # White text straight on the frame could not be read over a bright sky (a 640x360 dusk clip).
+    frame = frame_of(kind)
+    drawn = draw_lane(frame, wide_lane() if found else None, identity_view(), alpha=0.0)  # the caption only
+    changed = np.argwhere((drawn != frame).any(axis=2))
+    assert len(changed), "no caption drawn (or drawn in the frame's own colours)"
+    (y0, x0), (y1, x1) = changed.min(axis=0), changed.max(axis=0) + 1
+    box = luminance(drawn[y0:y1, x0:x1])
+    text, ground = box.max(), np.median(box)
+    assert (text + 0.05) / (ground + 0.05) >= 4.5  # WCAG AA: the text against what lies around it
+    assert y1 <= H // 2 and x0 >= (BAR if kind == "pillarboxed" else 0)  # in the top half, inside the picture
+
+
+@pytest.mark.parametrize("kind", ["pillarboxed", "bright"])
+def test_lane_is_drawn_inside_the_picture_only(kind):
+    frame = frame_of(kind)
+    drawn = draw_lane(frame, wide_lane(), identity_view())
+    assert (drawn[:, :BAR] == frame[:, :BAR]).all() == (kind == "pillarboxed")  # the bars stay black
+    assert (drawn[:, W - BAR :] == frame[:, W - BAR :]).all() == (kind == "pillarboxed")
+    assert (drawn[H - 1, BAR : W - BAR] != frame[H - 1, BAR : W - BAR]).any(axis=1).all()  # the picture has its lane
+    # the picture given (a video's bars, measured on its first frames) is the one kept to
+    inside = draw_lane(frame_of("bright"), wide_lane(), identity_view(), area=(BAR, 0, W - BAR, H))
+    assert (inside[:, :BAR] == 255).all() and (inside[:, W - BAR :] == 255).all()

@@ -406,10 +406,11 @@ def run_input(
     first = start if kind != "image" else 0
     with output_batch():
         if kind == "video":
-            table, n_frames, more, lane_rows = _run_video(path, options, detector, run_outputs, threads)
+            table, n_frames, more, lane_rows, cuts = _run_video(path, options, detector, run_outputs, threads)
             image = None
         else:
             table, n_frames, more, lane_rows, image = _run_images(path, kind, images, options, detector, run_outputs, read)
+            cuts = None
         notes += more
         if estimate is not None and not estimate.ok:
             lane_rows = [(i, None, None) for i in range(first, first + n_frames)]
@@ -419,7 +420,7 @@ def run_input(
         if outputs.report is not None:
             write_html_report(outputs.report, table, video=path if kind == "video" else None,
                               lanes=lane_rows if (road.lanes or estimate is not None) else None, n_frames=first + n_frames,
-                              title=path.name, overwrite=options.overwrite)
+                              title=path.name, cuts=cuts, overwrite=options.overwrite)
         if outputs.camera is not None and estimate is not None and estimate.ok:
             save_estimate(outputs.camera, road.plane, estimate, options.road.camera, overwrite=options.overwrite, inputs=read)
         elif outputs.camera is not None:
@@ -472,7 +473,9 @@ def _run_video(path: Path, options: InputOptions, detector: Detector, outputs: O
         path, outputs.annotated, detector=detector, frames=(start, end), road=options.road, encoding=options.encoding,
         tables=outputs.tables, overwrite=options.overwrite, progress=options.progress, tracker=tracker, threads=threads,
     )
-    return table, tracker.state.frame_index - start, _video_notes(tracker, detector), lane_rows
+    # the cuts the run made (none without a rule: the report then finds them in the video)
+    cuts = tracker.state.cuts if detector.config.shot_cuts is not None else None
+    return table, tracker.state.frame_index - start, _video_notes(tracker, detector), lane_rows, cuts
 
 
 def _video_notes(tracker: Tracker, detector: Detector) -> list[str]:

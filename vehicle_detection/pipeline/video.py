@@ -256,7 +256,8 @@ def run_video(
             if writer is not None:
                 # The frame is this run's own (decoded, or undistorted, here) and its search is
                 # done: the boxes are drawn on it, and the writer takes it without a copy.
-                picture = survey.draw(frame, lane)
+                overlays = tracker.state.overlays  # the footage's bars, as the search measured them
+                picture = survey.draw(frame, lane, overlays.area if overlays is not None and overlays.shape == frame.shape[:2] else None)
                 drawn = draw_detections(picture, boxes, out=picture)
                 clock.lap("draw", t)
                 writer.write(drawn, copy=False)

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -45,6 +46,8 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..overlays import active_area
+from ..viz.drawing import draw_caption
 
 __all__ = [
     "BirdsEye",
@@ -654,26 +657,58 @@ def lane_row(frame: int, lane: Lane | None) -> tuple[int, float | None, float | 
     return (frame, lane.radius_m, lane.offset_m) if lane is not None else (frame, None, None)
 
 
-def draw_lane(image: np.ndarray, lane: Lane | None, birds_eye: BirdsEye, *, color=(0, 200, 255), alpha: float = 0.3) -> np.ndarray:
-    """The lane area filled on a copy of the (undistorted) frame, with radius and offset written."""
+def draw_lane(
+    image: np.ndarray,
+    lane: Lane | None,
+    birds_eye: BirdsEye,
+    *,
+    color=(0, 200, 255),
+    alpha: float = 0.3,
+    area: Sequence[int] | None = None,
+) -> np.ndarray:
+    """The lane area filled on a copy of the (undistorted) frame, with radius and offset written.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+        RGB frame; it is not modified.
+    lane : Lane or None
+        None writes ``lane: not found``.
+    birds_eye : BirdsEye
+        The view the lane was fitted in.
+    color : sequence of 3 int, default (0, 200, 255)
+        RGB fill of the lane.
+    alpha : float, default 0.3
+        The fill's opacity.
+    area : sequence of 4 int, optional
+        ``(x1, y1, x2, y2)`` of the picture inside black bars: the lane and the caption are drawn
+        inside it only. Default: the picture of ``image`` itself
+        (:func:`~vehicle_detection.overlays.active_area`).
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W, 3)
+        The caption on a dark panel (:func:`~vehicle_detection.viz.drawing.draw_caption`).
+    """
     out = np.array(image, copy=True)
+    h, w = out.shape[:2]
+    ax1, ay1, ax2, ay2 = active_area(out) if area is None else (int(v) for v in area)
+    ax1, ay1, ax2, ay2 = max(ax1, 0), max(ay1, 0), min(ax2, w), min(ay2, h)
     if lane is None:
-        cv2.putText(out, "lane: not found", (30, 50), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 255, 255), 2, cv2.LINE_AA)
-        return out
+        return draw_caption(out, ["lane: not found"], area=(ax1, ay1, ax2, ay2), out=out)
     ww, wh = birds_eye.warped_size
     y = np.linspace(0, wh - 1, 24)
     pts = np.r_[np.c_[np.polyval(lane.left_fit, y), y], np.c_[np.polyval(lane.right_fit, y), y][::-1]]
     cam = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), birds_eye.Minv).reshape(-1, 2)
     poly = np.round(cam).astype(np.int32)
-    x0, y0 = np.clip(poly.min(axis=0), 0, None)
-    x1, y1 = np.minimum(poly.max(axis=0) + 1, [out.shape[1], out.shape[0]])
-    if x1 > x0 and y1 > y0:  # blend only the polygon's bounding box
+    x0, y0 = np.maximum(poly.min(axis=0), [ax1, ay1])
+    x1, y1 = np.minimum(poly.max(axis=0) + 1, [ax2, ay2])
+    if x1 > x0 and y1 > y0:  # blend only the polygon's bounding box inside the picture
         roi = out[y0:y1, x0:x1]
         overlay = roi.copy()
         cv2.fillPoly(overlay, [poly - [x0, y0]], color)
         out[y0:y1, x0:x1] = cv2.addWeighted(overlay, alpha, roi, 1 - alpha, 0)
     radius = "straight" if lane.radius_m > 10_000 else f"{lane.radius_m:,.0f} m"
     side = "right" if lane.offset_m > 0 else "left"
-    for i, text in enumerate((f"radius of curvature: {radius}", f"{abs(lane.offset_m):.2f} m {side} of lane centre")):
-        cv2.putText(out, text, (30, 50 + 40 * i), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 255, 255), 2, cv2.LINE_AA)
-    return out
+    lines = [f"radius of curvature: {radius}", f"{abs(lane.offset_m):.2f} m {side} of lane centre"]
+    return draw_caption(out, lines, area=(ax1, ay1, ax2, ay2), out=out)

@@ -210,6 +210,8 @@ class RoadSurvey:
         if self._lanes is not None:
             self.lane_rows.append(lane_row(frame, lane))
 
-    def draw(self, frame: np.ndarray, lane: Lane | None) -> np.ndarray:
-        """The (undistorted) frame with its lane drawn, when lanes are asked for; else the frame."""
-        return frame if self._lanes is None else draw_lane(frame, lane, self.road.plane)
+    def draw(self, frame: np.ndarray, lane: Lane | None, area: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """The (undistorted) frame with its lane drawn, when lanes are asked for; else the frame.
+        ``area``: the picture inside black bars, where the lane is drawn (default: the frame's
+        own, :func:`~vehicle_detection.road.lanes.draw_lane`)."""
+        return frame if self._lanes is None else draw_lane(frame, lane, self.road.plane, area=area)

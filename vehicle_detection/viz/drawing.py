@@ -16,7 +16,8 @@ from numpy.typing import ArrayLike
 from ..detections import Detections
 from ..geometry import as_boxes
 
-__all__ = ["draw_boxes", "draw_detections", "context_region", "tile_view", "add_caption", "failure_tile", "failure_sheet"]
+__all__ = ["draw_boxes", "draw_detections", "place_labels", "draw_caption", "context_region", "tile_view", "add_caption",
+           "failure_tile", "failure_sheet"]
 
 #: Colour of a vehicle's box in annotated videos and figures (RGB).
 BOX_COLOR = (0, 255, 0)
@@ -72,8 +73,10 @@ def draw_boxes(
     thickness : int, default 3
         Line width in pixels, >= 1; the lines lie inside the box, growing inward from its edge.
     labels : sequence of str or int, optional
-        One label per box (e.g. track ids), written on a filled tag of ``color`` above the box's
-        top-left corner (inside the box when there is no room above).
+        One label per box (e.g. track ids), written on a filled tag of ``color`` next to the box
+        (:func:`place_labels`: above its top-left corner where there is room, always inside the
+        image, no tag over another; a tag that fits nowhere is left out). Tags are drawn over
+        every box's lines.
     out : ndarray of uint8, shape (H, W, 3), optional
         Where to draw: a C-contiguous, writeable array of the image's shape, which gets the
         image and the boxes. ``out=image`` draws in place, without a copy. By default a new
@@ -114,12 +117,11 @@ def draw_boxes(
     hi = np.array([w + margin, h + margin, w + margin, h + margin])
     box_int = np.clip(box_arr, lo, hi).astype(np.int64)
 
-    font = cv2.FONT_HERSHEY_SIMPLEX
     font_scale = 0.6
     text_thickness = max(1, thickness // 2)
     # Black text on light colours, white on dark (Rec. 601 luma).
     text_color = (0, 0, 0) if 0.299 * col[0] + 0.587 * col[1] + 0.114 * col[2] > 127 else (255, 255, 255)
-    for i, (x1, y1, x2, y2) in enumerate(box_int.tolist()):
+    for x1, y1, x2, y2 in box_int.tolist():
         # cv2's thick lines are centred on their path and wider than asked; four filled bands
         # give edges exactly `thickness` pixels wide, inside the box [x1, x2 - 1] x [y1, y2 - 1].
         xr, yb = max(x2 - 1, x1), max(y2 - 1, y1)
@@ -131,14 +133,16 @@ def draw_boxes(
             ((xr - tx + 1, y1), (xr, yb)),  # right
         ):
             cv2.rectangle(out, p1, p2, col, cv2.FILLED)
-        if labels is None or not labels[i]:
-            continue
-        (tw, th), baseline = cv2.getTextSize(labels[i], font, font_scale, text_thickness)
-        tag_h = th + baseline + 4
-        top = y1 - tag_h if y1 - tag_h >= 0 else y1
-        cv2.rectangle(out, (x1, top), (x1 + tw + 4, top + tag_h - 1), col, cv2.FILLED)
-        origin = (x1 + 2, top + 2 + th)  # bottom-left of the text
-        cv2.putText(out, labels[i], origin, font, font_scale, text_color, text_thickness, cv2.LINE_AA)
+    if labels is None:
+        return out
+    named = [i for i, label in enumerate(labels) if label]
+    metrics = [cv2.getTextSize(labels[i], _FONT, font_scale, text_thickness) for i in named]
+    sizes = [(tw + 4, th + baseline + 4) for (tw, th), baseline in metrics]
+    rects, shown = place_labels(box_arr[named], np.array(sizes, np.int64).reshape(-1, 2), out.shape)
+    for i, ((_, th), _), (rx1, ry1, rx2, ry2), ok in zip(named, metrics, rects.tolist(), shown.tolist()):
+        if ok:
+            cv2.rectangle(out, (rx1, ry1), (rx2 - 1, ry2 - 1), col, cv2.FILLED)
+            cv2.putText(out, labels[i], (rx1 + 2, ry1 + 2 + th), _FONT, font_scale, text_color, text_thickness, cv2.LINE_AA)
     return out
 
 
@@ -152,6 +156,152 @@ def _canvas(image: np.ndarray, out: np.ndarray | None) -> np.ndarray:
                          + (f"{out.dtype} of shape {out.shape}" if isinstance(out, np.ndarray) else type(out).__name__))
     if out is not image:
         np.copyto(out, image)
+    return out
+
+
+def place_labels(boxes: ArrayLike, sizes: ArrayLike, frame_shape: tuple[int, ...], *, gap: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Where to put each box's label tag: next to its box, inside the frame, none over another.
+
+    A tag's place of choice is just above its box, left-aligned with it (moved inside the frame
+    where that reaches past an edge). Tags are placed one by one, those of the boxes reaching
+    lowest in the frame (the nearest vehicles) first; each takes, of the places inside the frame
+    that keep ``gap`` pixels from every tag placed before it, the one nearest (city-block
+    distance) to its place of choice. The places tried lie against the box's sides, the frame's
+    edges and the tags already placed.
+
+    Parameters
+    ----------
+    boxes : array_like, shape (n, 4)
+        ``[x1, y1, x2, y2]`` of the boxes (x2, y2 exclusive).
+    sizes : array_like of int, shape (n, 2)
+        ``(width, height)`` in pixels of each box's tag.
+    frame_shape : tuple
+        ``(H, W, ...)`` of the frame.
+    gap : int, default 1
+        Least number of pixels between two tags, >= 0.
+
+    Returns
+    -------
+    rects : ndarray of int64, shape (n, 4)
+        Each tag's ``[x1, y1, x2, y2]`` (x2, y2 exclusive), inside the frame; pairwise disjoint
+        (``gap`` pixels apart) among the tags shown.
+    shown : ndarray of bool, shape (n,)
+        False for a tag that fits nowhere (larger than the frame, or the frame full of tags); its
+        rect is then its place of choice.
+
+    Examples
+    --------
+    >>> rects, shown = place_labels([[10, 40, 60, 80], [20, 40, 70, 80]], [[40, 12], [40, 12]], (100, 100))
+    >>> rects.tolist(), shown.tolist()
+    ([[10, 28, 50, 40], [20, 15, 60, 27]], [True, True])
+    """
+    b = as_boxes(boxes, "boxes")
+    wh = np.asarray(sizes, dtype=np.int64).reshape(-1, 2)
+    if len(wh) != len(b):
+        raise ValueError(f"sizes has {len(wh)} rows for {len(b)} boxes")
+    if isinstance(gap, bool) or not isinstance(gap, (int, np.integer)) or gap < 0:
+        raise ValueError(f"gap must be an integer >= 0; got {gap!r}")
+    h, w = int(frame_shape[0]), int(frame_shape[1])
+    box = np.rint(b).astype(np.int64)
+    rects = np.zeros((len(b), 4), np.int64)
+    shown = np.zeros(len(b), bool)
+    placed = np.zeros((0, 4), np.int64)
+    for i in sorted(range(len(b)), key=lambda k: (-box[k, 3], k)):
+        tw, th = (int(v) for v in wh[i])
+        x1, y1, x2, y2 = box[i].tolist()
+        hx, hy = w - tw, h - th  # the largest top-left corner inside the frame
+        px, py = min(max(x1, 0), max(hx, 0)), min(max(y1 - th, 0), max(hy, 0))
+        rects[i] = px, py, px + tw, py + th
+        if tw > w or th > h or tw <= 0 or th <= 0:
+            continue
+        xs = np.array([px, x1, x2 - tw, 0, hx, *(placed[:, 2] + gap), *(placed[:, 0] - gap - tw)], np.int64)
+        ys = np.array([py, y1, y2, 0, hy, *(placed[:, 3] + gap), *(placed[:, 1] - gap - th)], np.int64)
+        xs, ys = np.unique(xs[(xs >= 0) & (xs <= hx)]), np.unique(ys[(ys >= 0) & (ys <= hy)])
+        cx, cy = (a.ravel() for a in np.meshgrid(xs, ys))
+        free = np.ones(len(cx), bool)
+        if len(placed):
+            free = ~((cx[:, None] < placed[None, :, 2] + gap) & (placed[None, :, 0] < cx[:, None] + tw + gap)
+                     & (cy[:, None] < placed[None, :, 3] + gap) & (placed[None, :, 1] < cy[:, None] + th + gap)).any(axis=1)
+        if not free.any():
+            continue
+        cost = np.where(free, np.abs(cx - px) + np.abs(cy - py), np.iinfo(np.int64).max)
+        k = int(np.argmin(cost))
+        rects[i] = cx[k], cy[k], cx[k] + tw, cy[k] + th
+        shown[i] = True
+        placed = np.vstack([placed, rects[i]])
+    return rects, shown
+
+
+#: Caption text and panel (RGB), and the panel's opacity over the frame.
+CAPTION_COLOR = (255, 255, 255)
+CAPTION_PANEL = (0, 0, 0)
+CAPTION_ALPHA = 0.7
+
+
+def draw_caption(
+    image: np.ndarray,
+    lines: Sequence[str],
+    *,
+    area: Sequence[int] | None = None,
+    scale: float | None = None,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """Lines of white text on a dark panel in the top-left corner of the picture.
+
+    The panel is black at :data:`CAPTION_ALPHA` opacity over the frame, so the text reads on a
+    bright sky as on a night road (a contrast ratio of at least 7 to 1 on a white frame).
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+        RGB frame; it is not modified (unless it is ``out``).
+    lines : sequence of str
+        The caption, one entry a line.
+    area : sequence of 4 int, optional
+        ``(x1, y1, x2, y2)`` of the picture inside black bars
+        (:func:`~vehicle_detection.overlays.active_area`); the caption lies inside it. Default:
+        the whole image.
+    scale : float, optional
+        Font scale (OpenCV's Hershey simplex). Default: the picture's height over 720, between
+        0.4 and 1; smaller when a line would not fit the picture's width.
+    out : ndarray of uint8, shape (H, W, 3), optional
+        Where to draw, as for :func:`draw_boxes`.
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W, 3)
+        A new array, or ``out``.
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must be uint8 of shape (H, W, 3); got {image.dtype} of shape {image.shape}")
+    out = _canvas(image, out)
+    h, w = out.shape[:2]
+    ax1, ay1, ax2, ay2 = (0, 0, w, h) if area is None else (int(v) for v in area)
+    ax1, ay1, ax2, ay2 = max(ax1, 0), max(ay1, 0), min(ax2, w), min(ay2, h)
+    lines = [str(line) for line in lines]
+    if not lines or ax2 <= ax1 or ay2 <= ay1:
+        return out
+    s = float(scale) if scale is not None else min(1.0, max(0.4, (ay2 - ay1) / 720))
+    widest = max(cv2.getTextSize(line, _FONT, 1.0, 2)[0][0] for line in lines)
+    if scale is None and widest * s > 0.9 * (ax2 - ax1):
+        s = max(0.3, 0.9 * (ax2 - ax1) / widest)
+    thick = 2 if s >= 0.7 else 1
+    margin, step, pad = round(30 * s), round(40 * s), max(2, round(8 * s))
+    sizes = [cv2.getTextSize(line, _FONT, s, thick) for line in lines]
+    th, baseline = sizes[0][0][1], sizes[0][1]
+    x, y0 = ax1 + margin, ay1 + margin + th
+    px1, py1 = max(ax1, x - pad), max(ay1, y0 - th - pad)
+    px2 = min(ax2, x + max(tw for (tw, _), _ in sizes) + pad)
+    py2 = min(ay2, y0 + step * (len(lines) - 1) + baseline + pad)
+    if px2 > px1 and py2 > py1:
+        roi = out[py1:py2, px1:px2]
+        panel = np.empty_like(roi)
+        panel[:] = CAPTION_PANEL
+        out[py1:py2, px1:px2] = cv2.addWeighted(panel, CAPTION_ALPHA, roi, 1 - CAPTION_ALPHA, 0)
+    clip = out[ay1:ay2, ax1:ax2]  # text outside the picture would be cut at its edge
+    for i, line in enumerate(lines):
+        cv2.putText(clip, line, (x - ax1, y0 + step * i - ay1), _FONT, s, CAPTION_COLOR, thick, cv2.LINE_AA)
     return out
 
 

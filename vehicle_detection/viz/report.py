@@ -5,10 +5,15 @@
 table when there are ones, into one HTML file that any browser opens from disk:
 
 * a track timeline: the frames in which each tracked vehicle was reported;
-* a contact sheet: every track's first, middle and last box, cut from the video;
+* a contact sheet: every track's first, middle and last box on its vehicle, cut from the video
+  (boxes of frames in which the track was matched to a blob: not those it coasted through);
 * the number of boxes in each frame;
-* with distances (``detect --lanes``), each tracked vehicle's distance over time;
+* with distances (``detect --lanes``), each tracked vehicle's distance over time, each line
+  labelled with its track id;
 * with a lanes table, the radius of curvature and the lane-centre offset over time.
+
+Cuts between shots (:mod:`~vehicle_detection.shots`: the run's own, else found in the video) are
+dashed vertical lines on every chart over frames.
 
 Figures are drawn with matplotlib (``pip install "vehicle-detection[report]"``) and embedded as
 PNG ``data:`` URIs, the crops as JPEG ones; the page has no script, loads nothing from the
@@ -39,8 +44,10 @@ from ..errors import InputError, require
 from ..io import atomic_output, check_output_path
 from ..io.tables import read_boxes_csv, read_lanes_csv
 from ..io.video import probe_video, read_frames
+from ..shots import ShotCuts, next_shot
 
-__all__ = ["RunSummary", "summarize", "render_html_report", "write_html_report", "track_spans", "CROP_HEIGHT", "MAX_TRACKS"]
+__all__ = ["RunSummary", "summarize", "render_html_report", "write_html_report", "track_spans", "matched_rows", "CROP_HEIGHT",
+           "MAX_TRACKS"]
 
 #: Height in pixels of each crop of the contact sheet.
 CROP_HEIGHT = 96
@@ -235,6 +242,41 @@ def track_spans(detections: Detections) -> dict[int, np.ndarray]:
     return dict(sorted(groups.items(), key=lambda kv: (int(detections.frame[kv[1][0]]), kv[0])))
 
 
+def matched_rows(detections: Detections, rows: np.ndarray) -> np.ndarray:
+    """Which of a track's rows hold a box the tracker matched to a blob (not one it coasted through).
+
+    A confirmed track's score is the peak heat of the blob last matched to it
+    (:meth:`~vehicle_detection.tracker.Tracker.update`): a row with the score of the row before
+    it, frames later, is a frame the track coasted through on its predicted box, which may have
+    left its vehicle (the last rows of most tracks). The rows the tracker back-filled when it
+    confirmed the track carry the confirming frame's score: the leading run of equal scores is
+    matched.
+
+    Parameters
+    ----------
+    detections : Detections
+        A tracked table.
+    rows : ndarray of int, shape (k,)
+        One track's rows, frames increasing (:func:`track_spans`).
+
+    Returns
+    -------
+    ndarray of bool, shape (k,)
+
+    Examples
+    --------
+    >>> d = Detections([[0, 0, 9, 9]] * 6, score=[4, 4, 4, 5, 5, 5], track_id=0, frame=range(6))
+    >>> matched_rows(d, np.arange(6)).tolist()
+    [True, True, True, True, False, False]
+    """
+    rows = np.asarray(rows, np.int64)
+    score = detections.score[rows]
+    same = np.r_[False, score[1:] == score[:-1]]
+    lead = int(np.argmin(same[1:])) + 1 if len(rows) > 1 and not same[1:].all() else len(rows)
+    same[:lead] = False
+    return ~same
+
+
 def _runs(frames: np.ndarray) -> list[tuple[int, int]]:
     """``(start, length)`` of each run of consecutive frames in sorted ``frames``."""
     if not len(frames):
@@ -259,7 +301,16 @@ def _png(fig) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _timeline(detections: Detections, spans: Mapping[int, np.ndarray], n_frames: int):
+def _mark_cuts(ax, cuts: Sequence[int], *, text: bool = False) -> None:
+    """Dashed vertical lines between each cut's frame and the frame before it; with ``text``, "cut" above each."""
+    for c in cuts:
+        ax.axvline(c - 0.5, color="0.25", ls="--", lw=1.0, zorder=3, gid=f"cut-{c}")
+        if text:
+            ax.annotate("cut", (c - 0.5, 1.0), xycoords=("data", "axes fraction"), xytext=(2, 2), textcoords="offset points",
+                        fontsize=7, color="0.25", va="bottom")
+
+
+def _timeline(detections: Detections, spans: Mapping[int, np.ndarray], n_frames: int, cuts: Sequence[int] = ()):
     Figure = _figure_module().Figure
     n = len(spans)
     fig = Figure(figsize=(9.0, min(1.2 + 0.22 * n, 14.0)), layout="constrained")
@@ -271,8 +322,10 @@ def _timeline(detections: Detections, spans: Mapping[int, np.ndarray], n_frames:
     ax.set_ylim(n - 0.5, -0.5)
     ax.set_xlim(-0.5, max(n_frames, 1) - 0.5)
     ax.set_xlabel("frame")
-    ax.set_title("track timeline: frames in which each vehicle is reported")
+    ax.set_title("track timeline: frames in which each vehicle is reported" + (" (dashed: cuts between shots)" if cuts else ""),
+                 pad=14 if cuts else None)
     ax.grid(axis="x", alpha=0.3)
+    _mark_cuts(ax, cuts, text=True)
     return fig
 
 
@@ -290,7 +343,7 @@ def _count_steps(frames: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndar
     return values, ends
 
 
-def _boxes_per_frame(detections: Detections, n_frames: int):
+def _boxes_per_frame(detections: Detections, n_frames: int, cuts: Sequence[int] = ()):
     Figure = _figure_module().Figure
     counts, edges = _count_steps(detections.frame, n_frames)
     fig = Figure(figsize=(9.0, 2.6), layout="constrained")
@@ -304,28 +357,65 @@ def _boxes_per_frame(detections: Detections, n_frames: int):
     ax.set_ylabel("boxes")
     ax.set_title("boxes per frame")
     ax.grid(alpha=0.3)
+    _mark_cuts(ax, cuts)
     return fig
 
 
-def _distances(detections: Detections, spans: Mapping[int, np.ndarray], n_frames: int):
+def _distances(detections: Detections, spans: Mapping[int, np.ndarray], n_frames: int, cuts: Sequence[int] = ()):
+    """Each track's distance over the frames, in its timeline row's colour, labelled with its id
+    at its last known distance (colours repeat every ten tracks; the labels do not)."""
     Figure = _figure_module().Figure
     dist = np.asarray(detections.data["distance_m"], np.float64)
-    fig = Figure(figsize=(9.0, 3.2), layout="constrained")
+    fig = Figure(figsize=(9.0, 3.2 if len(spans) <= 12 else 4.4), layout="constrained")
     ax = fig.add_subplot()
+    ends = []  # (frame, distance, id, colour) of each line's last known point
     for row, (tid, idx) in enumerate(spans.items()):
-        if np.isfinite(dist[idx]).any():
-            ax.plot(detections.frame[idx], dist[idx], ".-", ms=3, lw=1, color=f"C{row % 10}", label=f"car {tid}")
+        known = np.isfinite(dist[idx])
+        if known.any():
+            color = f"C{row % 10}"
+            ax.plot(detections.frame[idx], dist[idx], ".-", ms=3, lw=1, color=color, label=f"car {tid}")
+            last = idx[np.flatnonzero(known)[-1]]
+            ends.append((float(detections.frame[last]), float(dist[last]), tid, color))
+    if ends:
+        lo, hi = min(e[1] for e in ends), max(e[1] for e in ends)
+        for (x, y, tid, color), ty in zip(ends, _spread_labels(ends, max(n_frames, 1) / 60, max(hi - lo, 1.0) / 25)):
+            ax.annotate(str(tid), (x, y), xytext=(x + max(n_frames, 1) / 300, ty), textcoords="data", fontsize=7, color=color,
+                        va="center", gid=f"track-{tid}")
     ax.set_xlim(-0.5, max(n_frames, 1) - 0.5)
     ax.set_xlabel("frame")
     ax.set_ylabel("distance (m)")
-    ax.set_title("distance of each tracked vehicle")
+    ax.set_title("distance of each tracked vehicle (each line labelled with its track id at its end)")
     ax.grid(alpha=0.3)
-    if 0 < len(spans) <= 12:
-        ax.legend(fontsize=8, ncols=min(len(spans), 6))
+    _mark_cuts(ax, cuts)
     return fig
 
 
-def _lanes_figure(lanes: Mapping[str, np.ndarray], n_frames: int):
+def _spread_labels(ends: Sequence[tuple], near_x: float, step_y: float) -> list[float]:
+    """Heights of labels at points ``(x, y, ...)``: labels closer than ``near_x`` along x, in a
+    chain, are moved apart in y to ``step_y`` at least, about their mean height."""
+    heights = [float(e[1]) for e in ends]
+    order = sorted(range(len(ends)), key=lambda i: ends[i][0])
+    groups, current = [], [order[0]] if order else []
+    for a, b in zip(order, order[1:]):
+        if ends[b][0] - ends[a][0] < near_x:
+            current.append(b)
+        else:
+            groups.append(current)
+            current = [b]
+    if current:
+        groups.append(current)
+    for group in groups:
+        group = sorted(group, key=lambda i: heights[i])
+        ys = [heights[i] for i in group]
+        for k in range(1, len(ys)):
+            ys[k] = max(ys[k], ys[k - 1] + step_y)
+        shift = (sum(heights[i] for i in group) - sum(ys)) / len(ys)  # keep the group's mean height
+        for i, y in zip(group, ys):
+            heights[i] = y + shift
+    return heights
+
+
+def _lanes_figure(lanes: Mapping[str, np.ndarray], n_frames: int, cuts: Sequence[int] = ()):
     Figure = _figure_module().Figure
     fig = Figure(figsize=(9.0, 4.4), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
@@ -344,6 +434,7 @@ def _lanes_figure(lanes: Mapping[str, np.ndarray], n_frames: int):
     bottom.set_xlim(-0.5, max(n_frames, int(frames.max(initial=0)) + 1, 1) - 0.5)
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
+        _mark_cuts(ax, cuts)
     return fig
 
 
@@ -352,14 +443,16 @@ def _lanes_figure(lanes: Mapping[str, np.ndarray], n_frames: int):
 # --------------------------------------------------------------------------------------------
 
 
-def _picks(spans: Mapping[int, np.ndarray], limit: int) -> dict[int, list[int]]:
-    """Rows of the first, middle and last box of the ``limit`` longest tracks (distinct rows)."""
+def _picks(detections: Detections, spans: Mapping[int, np.ndarray], limit: int) -> dict[int, list[int]]:
+    """Rows of the first, middle and last matched box (:func:`matched_rows`) of the ``limit``
+    longest tracks (distinct rows)."""
     longest = sorted(spans, key=lambda t: (-len(spans[t]), t))[:limit]
     keep = set(longest)
     out = {}
     for tid, idx in spans.items():
         if tid in keep:
-            out[tid] = [int(i) for i in dict.fromkeys([idx[0], idx[len(idx) // 2], idx[-1]])]
+            on = idx[matched_rows(detections, idx)]
+            out[tid] = [int(i) for i in dict.fromkeys([on[0], on[len(on) // 2], on[-1]])]
     return out
 
 
@@ -384,27 +477,34 @@ def _crop(frame: np.ndarray, box: Sequence[int]) -> np.ndarray:
     return np.asarray(Image.fromarray(patch).resize((width, CROP_HEIGHT), Image.Resampling.BILINEAR))
 
 
-def _cut_crops(video: Path, detections: Detections, rows: Iterable[int]) -> dict[int, np.ndarray]:
-    """Crop of each row's box from ``video``, decoding up to the last frame needed."""
+def _cut_crops(video: Path, detections: Detections, rows: Iterable[int], *, cuts_before: int = 0) -> tuple[dict[int, np.ndarray], list[int]]:
+    """Crop of each row's box from ``video``, decoding up to the last frame needed; and the cuts
+    between shots (:func:`~vehicle_detection.shots.next_shot`, default rule) in the first
+    ``cuts_before`` frames, decoding those too."""
 
     wanted: dict[int, list[int]] = {}
     for r in rows:
         wanted.setdefault(int(detections.frame[r]), []).append(r)
     crops: dict[int, np.ndarray] = {}
-    if not wanted:
-        return crops
-    last = max(wanted)
-    seen = 0
+    cuts: list[int] = []
+    last = max(wanted, default=-1)
+    if last < 0 and cuts_before <= 0:
+        return crops, cuts
+    seen, shot, rule = 0, (None, ()), ShotCuts()
     with closing(read_frames(video)) as frames:
         for index, frame in enumerate(frames):
             seen = index + 1
             for r in wanted.get(index, ()):
                 crops[r] = _crop(frame, detections.xyxy[r])
-            if index >= last:
+            if index < cuts_before:
+                cut, *shot = next_shot(frame, *shot, rule)
+                if cut:
+                    cuts.append(index)
+            if index >= max(last, cuts_before - 1):
                 break
     if seen <= last:
         raise InputError(f"{video}: has {seen} frames, but the boxes name frame {last}; are these the boxes of this video?")
-    return crops
+    return crops, cuts
 
 
 # --------------------------------------------------------------------------------------------
@@ -478,9 +578,35 @@ def _frame_count(detections: Detections, n_frames, lane_table, info) -> tuple[in
     return last, " (at least: up to the last frame with a box)"
 
 
-def _facts(detections, spans, frames, frames_note, video, info, boxes_name, lanes_name) -> list[tuple[str, str]]:
+def _tracks_fact(spans: Mapping[int, np.ndarray]) -> str:
+    """How many tracks the page shows, and the ids they have: the tracker numbers every
+    candidate, also those never confirmed as a vehicle, whose ids are then missing."""
+    if not spans:
+        return "0"
+    ids = sorted(spans)
+    lo, hi = ids[0], ids[-1]
+    if lo == hi:
+        return f"1 (id {lo})"
+    missing = hi - lo + 1 - len(ids)
+    if not missing:
+        return f"{len(ids)} (ids {lo} to {hi})"
+    return (f"{len(ids)} (ids {lo} to {hi}: the tracker numbers every candidate, and {missing} "
+            f"{'candidate was' if missing == 1 else 'candidates were'} never confirmed as vehicles)")
+
+
+def _cuts_fact(cuts: Sequence[int] | None, source: str) -> list[tuple[str, str]]:
+    if cuts is None:
+        return []
+    if not cuts:
+        return [("cuts between shots", f"none{source}")]
+    return [("cuts between shots", f"{len(cuts)}: {'frame' if len(cuts) == 1 else 'frames'} {', '.join(map(str, cuts))}{source} "
+             "(dashed lines on the charts)")]
+
+
+def _facts(detections, spans, frames, frames_note, video, info, boxes_name, lanes_name, cuts=None, cuts_source="") -> list[tuple[str, str]]:
     facts = [("frames", f"{frames}{frames_note}"), ("boxes", str(len(detections)))]
-    facts.append(("vehicles tracked", str(len(spans)) if detections.track_id is not None else "untracked boxes"))
+    facts.append(("vehicles tracked", _tracks_fact(spans) if detections.track_id is not None else "untracked boxes"))
+    facts += _cuts_fact(cuts, cuts_source)
     if info is not None:
         facts.append(("video", f"{video} ({info.width}x{info.height}, {info.fps:.2f} fps)"))
     if boxes_name:
@@ -492,10 +618,10 @@ def _facts(detections, spans, frames, frames_note, video, info, boxes_name, lane
     return facts
 
 
-def _timeline_section(detections, spans, frames) -> list[str]:
+def _timeline_section(detections, spans, frames, cuts=()) -> list[str]:
     body = ["<h2>Track timeline</h2>"]
     if spans:
-        body.append(_figure_img(_timeline(detections, spans, frames), "track timeline"))
+        body.append(_figure_img(_timeline(detections, spans, frames, cuts), "track timeline"))
     else:
         body.append('<p class="note">No tracks: ' + ("the boxes are not tracked." if detections.track_id is None else "no vehicle was tracked.") + "</p>")
     return body
@@ -511,12 +637,12 @@ def _sheet_cell(detections, r: int, tid: int, crops: dict) -> str:
     return f"<figure>{pic}<figcaption>{html.escape(caption)}</figcaption></figure>"
 
 
-def _sheet_section(detections, spans, video, max_tracks: int) -> list[str]:
+def _sheet_section(detections, spans, video, picks, crops) -> list[str]:
     body = ["<h2>Contact sheet: each track's first, middle and last box</h2>"]
     if not spans:
         return body + ['<p class="note">No tracks to show.</p>']
-    picks = _picks(spans, max_tracks)
-    crops = _cut_crops(video, detections, [r for rows in picks.values() for r in rows]) if video is not None else {}
+    body.append('<p class="note">Boxes of frames in which the track was matched to a detection; not those it coasted '
+                "through on its predicted box (after its car was lost).</p>")
     if video is None:
         body.append('<p class="note">No video given: the boxes without their pictures.</p>')
     if len(picks) < len(spans):
@@ -531,17 +657,17 @@ def _sheet_section(detections, spans, video, max_tracks: int) -> list[str]:
     return body
 
 
-def _counts_section(detections, frames) -> list[str]:
+def _counts_section(detections, frames, cuts=()) -> list[str]:
     mean = f"{len(detections) / frames:.2f}" if frames else "no"
     empty = frames - len(np.unique(detections.frame))
     return [
         "<h2>Boxes per frame</h2>",
-        _figure_img(_boxes_per_frame(detections, frames), "boxes per frame"),
+        _figure_img(_boxes_per_frame(detections, frames, cuts), "boxes per frame"),
         f'<p class="note">{mean} boxes per frame on average; frames without any: {empty}.</p>',
     ]
 
 
-def _distance_section(detections, spans, frames) -> list[str]:
+def _distance_section(detections, spans, frames, cuts=()) -> list[str]:
     if not (spans and "distance_m" in detections.data):
         return []
     dist = np.asarray(detections.data["distance_m"], np.float64)
@@ -549,10 +675,14 @@ def _distance_section(detections, spans, frames) -> list[str]:
     note = f"distance known for {int(known.sum())} of {len(dist)} boxes"
     if known.any():
         note += f", {dist[known].min():.1f} to {dist[known].max():.1f} m"
-    return ["<h2>Distances</h2>", _figure_img(_distances(detections, spans, frames), "distance of each tracked vehicle"), f'<p class="note">{note}.</p>']
+    shown = [t for t, idx in spans.items() if known[idx].any()]
+    if shown:
+        note += f"; each line is labelled with its track id at its end ({', '.join(f'car {t}' for t in shown)})"
+    return ["<h2>Distances</h2>", _figure_img(_distances(detections, spans, frames, cuts), "distance of each tracked vehicle"),
+            f'<p class="note">{html.escape(note)}.</p>']
 
 
-def _lanes_section(lane_table, frames) -> list[str]:
+def _lanes_section(lane_table, frames, cuts=()) -> list[str]:
     if lane_table is None:
         return []
     if not len(lane_table["frame"]):
@@ -563,7 +693,7 @@ def _lanes_section(lane_table, frames) -> list[str]:
     if found.any():
         note += (f"; median radius {np.median(radius[found]):,.0f} m, offset {np.nanmin(offset):+.2f} to "
                  f"{np.nanmax(offset):+.2f} m (+ right of the lane centre)")
-    return ["<h2>Lanes</h2>", _figure_img(_lanes_figure(lane_table, frames), "radius of curvature and offset"), f'<p class="note">{note}.</p>']
+    return ["<h2>Lanes</h2>", _figure_img(_lanes_figure(lane_table, frames, cuts), "radius of curvature and offset"), f'<p class="note">{note}.</p>']
 
 
 def render_html_report(
@@ -574,6 +704,7 @@ def render_html_report(
     n_frames: int | None = None,
     title: str | None = None,
     max_tracks: int = MAX_TRACKS,
+    cuts: Iterable[int] | None = None,
 ) -> str:
     """The HTML report of a run, as text (see :func:`write_html_report`)."""
     detections, boxes_name = _as_detections(boxes)
@@ -583,16 +714,23 @@ def render_html_report(
     info = probe_video(video) if video is not None else None
     frames, frames_note = _frame_count(detections, n_frames, lane_table, info)
     spans = track_spans(detections)
+    picks = _picks(detections, spans, max_tracks)
+    wanted = [r for rows in picks.values() for r in rows]
+    find = cuts is None and video is not None
+    crops, found = _cut_crops(video, detections, wanted, cuts_before=frames if find else 0) if video is not None else ({}, [])
+    cuts = found if find else None if cuts is None else sorted({int(c) for c in cuts})
+    source = ", found in the video" if find else ""
+    shown_cuts = [c for c in cuts or () if 0 < c < frames]
     name = title or (video.name if video is not None else Path(boxes_name).name if boxes_name else "detections")
-    facts = _facts(detections, spans, frames, frames_note, video, info, boxes_name, lanes_name)
+    facts = _facts(detections, spans, frames, frames_note, video, info, boxes_name, lanes_name, cuts, source)
     body = [f"<h1>{html.escape(name)}</h1>", '<table class="facts">']
     body += [f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in facts]
     body.append("</table>")
-    body += _timeline_section(detections, spans, frames)
-    body += _sheet_section(detections, spans, video, max_tracks)
-    body += _counts_section(detections, frames)
-    body += _distance_section(detections, spans, frames)
-    body += _lanes_section(lane_table, frames)
+    body += _timeline_section(detections, spans, frames, shown_cuts)
+    body += _sheet_section(detections, spans, video, picks, crops)
+    body += _counts_section(detections, frames, shown_cuts)
+    body += _distance_section(detections, spans, frames, shown_cuts)
+    body += _lanes_section(lane_table, frames, shown_cuts)
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         f"<title>{html.escape(name)}: vehicle-detection report</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
@@ -610,6 +748,7 @@ def write_html_report(
     n_frames: int | None = None,
     title: str | None = None,
     max_tracks: int = MAX_TRACKS,
+    cuts: Iterable[int] | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write one self-contained HTML page about a run, atomically.
@@ -636,6 +775,12 @@ def write_html_report(
         The page's heading (default: the video's or the CSV's file name).
     max_tracks : int
         Tracks on the contact sheet at most (the longest); every track is on the timeline.
+    cuts : iterable of int, optional
+        The frames at which the run's footage cut to another shot
+        (:attr:`TrackerState.cuts <vehicle_detection.tracker.TrackerState.cuts>`), marked on
+        the charts. Default: found in ``video`` (:func:`~vehicle_detection.shots.next_shot`
+        with the default :class:`~vehicle_detection.shots.ShotCuts`, decoding every frame of
+        the run), else none marked.
     overwrite : bool
         Replace an existing file at ``path``.
 
@@ -669,7 +814,7 @@ def write_html_report(
 
     inputs = [p for p in (boxes, video, lanes) if isinstance(p, (str, os.PathLike))]
     check_output_path(path, overwrite=overwrite, inputs=inputs)  # before the work
-    text = render_html_report(boxes, video=video, lanes=lanes, n_frames=n_frames, title=title, max_tracks=max_tracks)
+    text = render_html_report(boxes, video=video, lanes=lanes, n_frames=n_frames, title=title, max_tracks=max_tracks, cuts=cuts)
     with atomic_output(path, overwrite=overwrite, inputs=inputs) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")
     return Path(path)
