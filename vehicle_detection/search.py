@@ -162,10 +162,10 @@ class SearchPlan:
         frame height from the top: the bands move up or down together by its distance from
         ``reference_horizon``. None keeps them where they are written;
         :class:`~vehicle_detection.detector.Detector` then estimates it from the footage
-        (:mod:`~vehicle_detection.horizon`) unless its config says not to.
+        (:mod:`~vehicle_detection.footage.horizon`) unless its config says not to.
     reference_horizon : float
         The horizon of the camera the bands are written for (the project camera's, measured by
-        :func:`~vehicle_detection.horizon.vanishing_row`).
+        :func:`~vehicle_detection.footage.horizon.vanishing_row`).
     full_search_every : int
         Search schedule over video frames (:class:`~vehicle_detection.detector.Detector`): every
         ``full_search_every``-th frame (counted from the video's frame 0) is searched whole, and so are the first ``min_hits``
