@@ -198,7 +198,7 @@ def test_each_shot_is_measured_again(clip_a_frames, test_frames):
 
 def test_windows_on_the_static_mask_are_dropped(test_frames):
     from vehicle_detection.detector import MASKED_SHARE
-    from vehicle_detection.overlays import Overlays
+    from vehicle_detection.footage.overlays import Overlays
 
     det = Detector()
     frame = test_frames[0]  # a black car at x 816..952, a white one from x 1048 to the right edge
@@ -412,7 +412,7 @@ def _two_shots():
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_no_track_is_carried_across_a_cut_between_shots(workers):
-    from vehicle_detection.shots import ShotCuts
+    from vehicle_detection.footage.shots import ShotCuts
 
     frames, windows = _two_shots()
     tracker = TrackerConfig(threshold=2.0, min_hits=3)

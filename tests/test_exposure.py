@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from vehicle_detection.exposure import Exposure, brighten, exposure_gain, picture_level
+from vehicle_detection.footage.exposure import Exposure, brighten, exposure_gain, picture_level
 
 
 def test_settings_are_checked_and_round_trip():

@@ -291,7 +291,7 @@ def test_no_lane_is_carried_across_a_cut_between_shots():
     """A painted road, then a cut to a frame of grey blocks: with cuts found, the lane of the last
     shot is not kept (no stale fit is drawn over the new shot); taken as one shot, it coasts on."""
     from vehicle_detection.road.survey import Road
-    from vehicle_detection.shots import ShotCuts
+    from vehicle_detection.footage.shots import ShotCuts
 
     painted = np.where(synthetic_road(1000, 0)[..., None] > 0, 230, 70).astype(np.uint8).repeat(3, axis=2)
     blocks = np.random.default_rng(1).integers(0, 150, (H // 40, W // 40, 1)).astype(np.uint8).repeat(40, 0).repeat(40, 1).repeat(3, 2)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO, shared_data_dir
-from vehicle_detection.overlays import (
+from vehicle_detection.footage.overlays import (
     BarParams,
     MaskParams,
     Overlays,

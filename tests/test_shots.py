@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import shared_data_dir
 
-from vehicle_detection.shots import THUMBNAIL, ShotCuts, frame_change, next_shot, thumbnail
+from vehicle_detection.footage.shots import THUMBNAIL, ShotCuts, frame_change, next_shot, thumbnail
 
 HIGHWAY = shared_data_dir() / "videos" / "highway_dashcam_854x480.mp4"
 

@@ -9,7 +9,7 @@ off the road's lines (inside black bars, dark footage brightened, as the detecto
 and the one the embedded detector reads off the cars
 (:meth:`Detector._horizon_from_cars`, the fallback where the lines give none), as fractions of
 the picture height, and the seconds the cars took. ``--margins`` prints the cars' horizon for
-each of those smallest window margins (:attr:`vehicle_detection.horizon.CarHorizon.min_margin`)
+each of those smallest window margins (:attr:`vehicle_detection.footage.horizon.CarHorizon.min_margin`)
 instead of the embedded detector's.
 """
 
@@ -40,8 +40,8 @@ def show(value: float | None) -> str:
 
 def main() -> None:
     import vehicle_detection as vd
-    from vehicle_detection.exposure import brighten
-    from vehicle_detection.horizon import estimate_horizon
+    from vehicle_detection.footage.exposure import brighten
+    from vehicle_detection.footage.horizon import estimate_horizon
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("oc_dir", nargs="?", type=Path, help="the simulated views of tools/other_cameras.py")

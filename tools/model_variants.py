@@ -17,11 +17,11 @@ the embedded model:
   fitted to the frame (:func:`vehicle_detection.refine.fit_sides`); ``side_reach=R`` and
   ``side_prior=P``: the sides fitted with those :class:`vehicle_detection.refine.SideFit` fields;
 * ``shot_cuts=none`` or ``shot_cuts=on``: the video tracked as one shot, or the tracker started
-  afresh at each cut between shots (:mod:`vehicle_detection.shots`, default settings);
+  afresh at each cut between shots (:mod:`vehicle_detection.footage.shots`, default settings);
 * ``exposure=none`` or ``exposure=on``: dark footage searched as it is, or brightened
-  (:mod:`vehicle_detection.exposure`, default settings);
+  (:mod:`vehicle_detection.footage.exposure`, default settings);
 * ``car_horizon=none`` or ``car_horizon=on``: the horizon from the road's lines only, or also
-  from the cars where the lines give none (:class:`vehicle_detection.horizon.CarHorizon`);
+  from the cars where the lines give none (:class:`vehicle_detection.footage.horizon.CarHorizon`);
   ``car_margin=M``: the smallest margin of a window that counts there (its ``min_margin``);
 * ``car_candidates=A+B+...``: the candidate horizons the cars are searched at (its ``candidates``,
   fractions of the picture height);

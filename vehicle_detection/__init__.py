@@ -3,7 +3,7 @@
 The public API is loaded lazily: ``import vehicle_detection as vd`` is fast, and each name
 imports its module on first use. The stub ``__init__.pyi`` lists the names (type checkers and
 IDEs read it; :func:`lazy_loader.attach_stub` reads it at run time): the core's, and each
-subpackage's (``vd.io``, ``vd.road``, ``vd.metrics``, ``vd.training``, ``vd.viz``,
+subpackage's (``vd.io``, ``vd.footage``, ``vd.road``, ``vd.metrics``, ``vd.training``, ``vd.viz``,
 ``vd.pipeline``), whose own stubs list their names.
 
 >>> import vehicle_detection as vd

@@ -1,6 +1,6 @@
 # The public API of vehicle_detection, loaded on first use (lazy_loader.attach_stub reads this file).
 # The subpackages, each with a stub of its own names:
-from . import io, metrics, pipeline, road, training, viz
+from . import footage, io, metrics, pipeline, road, training, viz
 
 # Results and geometry (the base)
 from .detections import Detections
@@ -10,14 +10,16 @@ from .geometry import box_iou, match_boxes
 from .classifier import VehicleClassifier, load_default_model, load_model
 from .config import DetectorConfig
 from .detector import Detector
-from .exposure import Exposure
 from .features import FeatureConfig, extract_features
-from .horizon import CarHorizon, estimate_horizon, horizon_from_cars, vanishing_row
-from .overlays import active_area, find_overlays, static_mask
 from .refine import SideFit, fit_sides
 from .search import SearchPlan, SearchScale
-from .shots import ShotCuts
 from .tracker import Tracker, TrackerConfig
+
+# The footage: its horizon, exposure, cuts between shots, bars and overlays
+from .footage.exposure import Exposure
+from .footage.horizon import CarHorizon, estimate_horizon, horizon_from_cars, vanishing_row
+from .footage.overlays import active_area, find_overlays, static_mask
+from .footage.shots import ShotCuts
 
 # Images, video, tables and their formats
 from .io.formats import read_parquet, write_coco, write_mot, write_parquet

@@ -35,7 +35,6 @@ from .errors import ModelError, shorten
 from .features import FEATURE_FORMAT, FeatureConfig, extract_features
 from .io import atomic_output, input_file
 from .refine import BoxRegressor
-from .search import SearchPlan
 
 __all__ = [
     "MODEL_FORMAT",

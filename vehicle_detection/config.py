@@ -12,11 +12,11 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
-from .exposure import Exposure
-from .horizon import CarHorizon
+from .footage.exposure import Exposure
+from .footage.horizon import CarHorizon
 from .refine import SideFit
 from .search import SearchPlan, SearchScale
-from .shots import ShotCuts
+from .footage.shots import ShotCuts
 from .tracker import TrackerConfig
 
 __all__ = ["DetectorConfig"]
@@ -41,16 +41,16 @@ class DetectorConfig:
         Heat a single image's blob must exceed (videos use the tracker's integrated threshold).
     auto_horizon : bool
         When the plan fixes no ``horizon``, estimate the camera's horizon from a video's first
-        frames (:mod:`~vehicle_detection.horizon`) and move the search bands to it. Where no
+        frames (:mod:`~vehicle_detection.footage.horizon`) and move the search bands to it. Where no
         estimate can be made, and for single images, the plan is used as written.
     car_horizon : CarHorizon or None
         With ``auto_horizon``, where the road's lines give no horizon, read it off the cars
         found with the bands at several candidate horizons
-        (:func:`~vehicle_detection.horizon.horizon_from_cars`). None: from the lines only.
+        (:func:`~vehicle_detection.footage.horizon.horizon_from_cars`). None: from the lines only.
     auto_overlays : bool
         Search only the picture inside black bars, and drop windows lying mostly on the
         camera car's static parts (bonnet, windscreen mount) or burnt-in text, all found from a
-        video's first frames (:mod:`~vehicle_detection.overlays`); single images are cut from
+        video's first frames (:mod:`~vehicle_detection.footage.overlays`); single images are cut from
         their own bars. Footage without either is searched as before.
     side_fit : SideFit or None
         Move the boxes' left and right sides onto the vehicle's vertical edges in the frame
@@ -58,13 +58,13 @@ class DetectorConfig:
         each blob's box before the tracker matches it and averages it into its track; None
         reports the boxes as the heat and the tracker give them.
     shot_cuts : ShotCuts or None
-        In a video, find the cuts between shots (:mod:`~vehicle_detection.shots`) and start
+        In a video, find the cuts between shots (:mod:`~vehicle_detection.footage.shots`) and start
         the tracker afresh at each (:meth:`~vehicle_detection.tracker.Tracker.cut`): no track,
         and no heat, is carried from one shot into the next. None: the footage is taken as one
         shot.
     exposure : Exposure or None
         Brighten dark footage (dusk, dark cameras) for the search
-        (:mod:`~vehicle_detection.exposure`): a video measured on its first frames and at each
+        (:mod:`~vehicle_detection.footage.exposure`): a video measured on its first frames and at each
         cut, an image or a frame searched on its own on itself. None: searched as it is.
     traffic : {"right", "left"}
         The side of the road the footage's traffic keeps to. A model learns the traffic of its

@@ -46,6 +46,11 @@ MOVED_MODULES: dict[str, str] = {
         "plots": "viz.plots",
         "batch": "pipeline.batch",
         "live": "pipeline.live",
+        # the modules that read the footage, gathered in footage/
+        "horizon": "footage.horizon",
+        "exposure": "footage.exposure",
+        "shots": "footage.shots",
+        "overlays": "footage.overlays",
     }.items()
 }
 

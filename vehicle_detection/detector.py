@@ -10,8 +10,8 @@
   reject one-frame false positives and keeps a stable, smoothed box per vehicle.
 
 Footage of other cameras is measured from its first frames (:meth:`Detector.for_footage`):
-the horizon the search bands move to (:mod:`~vehicle_detection.horizon`), and the black bars
-and static overlays (:mod:`~vehicle_detection.overlays`): only the picture inside the bars is
+the horizon the search bands move to (:mod:`~vehicle_detection.footage.horizon`), and the black bars
+and static overlays (:mod:`~vehicle_detection.footage.overlays`): only the picture inside the bars is
 searched, and windows lying mostly on the camera car's static parts are dropped before they
 make heat.
 """
@@ -32,16 +32,16 @@ from .warmup import compile_search_kernels, load_search_kernels
 from .classifier import VehicleClassifier, load_default_model
 from .config import DetectorConfig
 from .detections import Detections
-from .exposure import brighten, exposure_gain, picture_level
+from .footage.exposure import brighten, exposure_gain, picture_level
 from .geometry import inset_boxes, mirror_boxes, mirror_image
 from .heatmap import add_heat, heat_to_boxes, split_blobs, vote_boxes
-from .horizon import TOLERANCE, estimate_horizon, horizon_from_cars
+from .footage.horizon import TOLERANCE, estimate_horizon, horizon_from_cars
 from .io.images import as_image, as_rgb_uint8
 from .io.timeline import Timeline, timing
-from .overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
+from .footage.overlays import Overlays, active_area, find_overlays, mask_integral, mask_share
 from .refine import fit_sides
 from .search import search, window_patches
-from .shots import next_shot
+from .footage.shots import next_shot
 from .tracker import Tracker, TrackerState, window_heat
 
 __all__ = ["Detector"]
@@ -149,7 +149,7 @@ class Detector:
 
     def with_gain(self, gain: float | None) -> Detector:
         """This detector searching frames multiplied by ``gain`` (dark footage,
-        :mod:`~vehicle_detection.exposure`; None: as configured, each frame by its own measure)."""
+        :mod:`~vehicle_detection.footage.exposure`; None: as configured, each frame by its own measure)."""
         if gain is None:
             return self
         if isinstance(gain, bool) or not isinstance(gain, (int, float, np.integer, np.floating)) or not 0 < gain <= MAX_GAIN:
@@ -181,15 +181,15 @@ class Detector:
         video are searched the same way:
 
         * with ``auto_overlays``, the black bars and static overlays
-          (:func:`~vehicle_detection.overlays.find_overlays`): the returned detector searches the
+          (:func:`~vehicle_detection.footage.overlays.find_overlays`): the returned detector searches the
           picture inside the bars and drops windows with more than :data:`MASKED_SHARE` of their
           area on the mask;
         * with ``exposure``, whether the picture is dark
-          (:func:`~vehicle_detection.exposure.exposure_gain` of the median of the frames'
+          (:func:`~vehicle_detection.footage.exposure.exposure_gain` of the median of the frames'
           levels): the returned detector searches the frames brightened by that gain;
         * with :attr:`estimates_horizon`, the horizon of the picture (brightened); the returned
           detector searches there, unless the estimate lies within
-          :data:`~vehicle_detection.horizon.TOLERANCE` of the plan's ``reference_horizon``.
+          :data:`~vehicle_detection.footage.horizon.TOLERANCE` of the plan's ``reference_horizon``.
 
         ``workers`` frames are measured at once (threads); the result is the same.
         :meth:`steps` measures each new shot again (:meth:`shot_cut`).
@@ -249,7 +249,7 @@ class Detector:
 
     def _horizon_from_cars(self, first: list, state: TrackerState, workers: int) -> float | None:
         """The horizon of ``first`` read off the cars found with the bands at each candidate
-        horizon of ``config.car_horizon`` (:func:`~vehicle_detection.horizon.horizon_from_cars`),
+        horizon of ``config.car_horizon`` (:func:`~vehicle_detection.footage.horizon.horizon_from_cars`),
         searching as ``state`` says otherwise (bars, overlays, light); None if they do not agree."""
         rule = self.config.car_horizon
         frames = [f for f in first if np.shape(f) == np.shape(first[0]) and np.asarray(f).dtype == np.uint8]
@@ -275,7 +275,7 @@ class Detector:
     def image_horizon(self, image: np.ndarray) -> tuple[float | None, str | None]:
         """The horizon of one image, and where it was read.
 
-        From the image's road lines (:func:`~vehicle_detection.horizon.estimate_horizon`), else,
+        From the image's road lines (:func:`~vehicle_detection.footage.horizon.estimate_horizon`), else,
         with ``config.car_horizon``, from the cars found in it with the bands at each candidate
         horizon. Both are read inside the image's own black bars (with ``auto_overlays``), as a
         fraction of the height of the picture there, from the top: where the search places its
@@ -314,10 +314,10 @@ class Detector:
 
         Only the picture is searched: inside the footage's black bars (:meth:`with_overlays`,
         set by :meth:`for_footage`), else, with ``auto_overlays``, inside the frame's own
-        (:func:`~vehicle_detection.overlays.active_area`). Windows with more than
+        (:func:`~vehicle_detection.footage.overlays.active_area`). Windows with more than
         :data:`MASKED_SHARE` of their area on the footage's static overlays are dropped. With
         ``exposure``, a dark picture is searched brightened (by the footage's gain,
-        :meth:`with_gain`, else by its own; :mod:`~vehicle_detection.exposure`).
+        :meth:`with_gain`, else by its own; :mod:`~vehicle_detection.footage.exposure`).
 
         Parameters
         ----------
@@ -525,7 +525,7 @@ class Detector:
 
     def shot_cut(self, frame: np.ndarray, tracker: Tracker) -> bool:
         """Whether ``frame``, the next frame of ``tracker``'s video, starts a new shot
-        (:func:`~vehicle_detection.shots.next_shot` with ``config.shot_cuts``; always False
+        (:func:`~vehicle_detection.footage.shots.next_shot` with ``config.shot_cuts``; always False
         when that is None). Each frame must be checked once, in order: the tracker's state
         keeps the last frame's thumbnail."""
         rule = self.config.shot_cuts

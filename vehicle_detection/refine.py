@@ -448,7 +448,7 @@ def fit_sides(image: np.ndarray, boxes: np.ndarray, fit: SideFit, *, area: tuple
         ``[x1, y1, x2, y2]`` in frame pixels, x2 and y2 exclusive, inside the frame.
     fit : SideFit
     area : (int, int, int, int), optional
-        The picture inside black bars, ``(x1, y1, x2, y2)`` (:func:`~vehicle_detection.overlays.active_area`):
+        The picture inside black bars, ``(x1, y1, x2, y2)`` (:func:`~vehicle_detection.footage.overlays.active_area`):
         sides move only within its columns, and its left and right edges count as the frame's.
         Default: the whole frame.
 

@@ -36,7 +36,7 @@ import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import cv2
 import numba
@@ -59,10 +59,10 @@ from .features import (
     region_hog,
 )
 from .io.images import as_rgb_uint8, check_frame_shape
-from .refine import apply_offsets, working_frame
+from .refine import BoxRegressor, apply_offsets, working_frame
 
 if TYPE_CHECKING:
-    from .classifier import VehicleClassifier
+    from .convnet import ConvNet
 
 __all__ = [
     "SearchScale",
@@ -71,6 +71,7 @@ __all__ = [
     "plan_bands",
     "search",
     "window_patches",
+    "WindowScorer",
 ]
 
 
@@ -162,10 +163,10 @@ class SearchPlan:
         frame height from the top: the bands move up or down together by its distance from
         ``reference_horizon``. None keeps them where they are written;
         :class:`~vehicle_detection.detector.Detector` then estimates it from the footage
-        (:mod:`~vehicle_detection.horizon`) unless its config says not to.
+        (:mod:`~vehicle_detection.footage.horizon`) unless its config says not to.
     reference_horizon : float
         The horizon of the camera the bands are written for (the project camera's, measured by
-        :func:`~vehicle_detection.horizon.vanishing_row`).
+        :func:`~vehicle_detection.footage.horizon.vanishing_row`).
     full_search_every : int
         Search schedule over video frames (:class:`~vehicle_detection.detector.Detector`): every
         ``full_search_every``-th frame (counted from the video's frame 0) is searched whole, and so are the first ``min_hits``
@@ -454,7 +455,44 @@ def plan_bands(frame: np.ndarray, plan: SearchPlan, config: FeatureConfig):
             yield k, band.image, band.rows, band.cols, _band_windows(band, config, 1.0)
 
 
-def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassifier, plan: SearchPlan | None = None) -> np.ndarray:
+class _Planned(Protocol):
+    """A model's detector settings, as far as the search reads them (a :class:`~vehicle_detection.config.DetectorConfig`)."""
+
+    @property
+    def plan(self) -> SearchPlan: ...
+
+
+class WindowScorer(Protocol):
+    """What the search reads of a model: the features it scores, its folded weights, its box
+    refinement or network, and the plan searched when none is given.
+
+    :class:`~vehicle_detection.classifier.VehicleClassifier` is one. The search names only what it
+    reads, so it needs nothing of the classifier module (whose model file carries a
+    :class:`~vehicle_detection.config.DetectorConfig`, and so a :class:`SearchPlan` of this one).
+    """
+
+    @property
+    def config(self) -> FeatureConfig: ...
+
+    @property
+    def weights(self) -> np.ndarray: ...
+
+    @property
+    def bias(self) -> float: ...
+
+    @property
+    def box_regressor(self) -> BoxRegressor | None: ...
+
+    @property
+    def convnet(self) -> ConvNet | None: ...
+
+    @property
+    def detector_config(self) -> _Planned: ...
+
+    def decision_images(self, images: np.ndarray) -> np.ndarray: ...
+
+
+def window_patches(frame: np.ndarray, windows: Detections, model: WindowScorer, plan: SearchPlan | None = None) -> np.ndarray:
     """The 64x64 patches the classifier scored for windows that :func:`search` returned.
 
     Each patch is cut from the scale's resized band exactly as the search saw it (INTER_AREA
@@ -469,7 +507,7 @@ def window_patches(frame: np.ndarray, windows: Detections, model: VehicleClassif
         The frame that was searched.
     windows : Detections
         Windows of ``search(frame, model, plan)`` (any subset), with ``data["scale_index"]``.
-    model : VehicleClassifier
+    model : WindowScorer
     plan : SearchPlan, optional
         The plan of the search; the model's own by default.
 
@@ -801,7 +839,7 @@ def _hist_lut(weights: np.ndarray) -> np.ndarray:
 class _KernelWeights:
     """A model's folded weights split by feature part, in the layouts the kernels read."""
 
-    def __init__(self, model: VehicleClassifier):
+    def __init__(self, model: WindowScorer):
         cfg = model.config
         w, lay = model.weights, cfg.layout()
         self.bias = model.bias
@@ -828,7 +866,7 @@ class _KernelWeights:
 _KERNEL_WEIGHTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _kernel_weights(model: VehicleClassifier) -> _KernelWeights:
+def _kernel_weights(model: WindowScorer) -> _KernelWeights:
     kw = _KERNEL_WEIGHTS.get(model)
     if kw is None:
         kw = _KERNEL_WEIGHTS[model] = _KernelWeights(model)
@@ -864,7 +902,7 @@ class _BandFeatures:
         return self.bin_means.reshape(self.bin_means.shape[0], -1)
 
 
-def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bool, frame: bool) -> _BandFeatures:
+def _band_features(band: _Band, model: WindowScorer, buffer, hog_blocks: bool, frame: bool) -> _BandFeatures:
     cfg, folded = model.config, _kernel_weights(model)
     conv = convert_color(band.image, cfg.color_space)
     ppc, cpb, n_hc = cfg.pixels_per_cell, cfg.cells_per_block, len(cfg.hog_channels)
@@ -898,7 +936,7 @@ def _band_features(band: _Band, model: VehicleClassifier, buffer, hog_blocks: bo
     return _BandFeatures(conv, variants, squares, blocks, bin_means, cell_scores, f)
 
 
-def _margins(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+def _margins(feats: _BandFeatures, model: WindowScorer, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Margins of the windows at ``rows`` x ``cols`` (top-left cells, increasing): ``(len(rows), len(cols))``."""
     cfg, folded = model.config, _kernel_weights(model)
     out = np.zeros((len(rows), len(cols)))
@@ -912,7 +950,7 @@ def _margins(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, c
     return out + folded.bias
 
 
-def _two_stage_margins(feats: _BandFeatures, model: VehicleClassifier, band: _Band, threshold: float, margin: float) -> np.ndarray:
+def _two_stage_margins(feats: _BandFeatures, model: WindowScorer, band: _Band, threshold: float, margin: float) -> np.ndarray:
     """The two-stage search of :attr:`SearchPlan.coarse_margin`: ``(rows, cols)``, -inf where not scored."""
     first = np.zeros((len(band.rows), len(band.cols)), bool)
     first[::2, ::2] = True
@@ -928,7 +966,7 @@ def _two_stage_margins(feats: _BandFeatures, model: VehicleClassifier, band: _Ba
     return margins
 
 
-def _refine_products(feats: _BandFeatures, model: VehicleClassifier, band: _Band, index: np.ndarray) -> np.ndarray:
+def _refine_products(feats: _BandFeatures, model: WindowScorer, band: _Band, index: np.ndarray) -> np.ndarray:
     """The box refinement's four edge maps (before its intercept) of the windows at flat ``index``: ``(n, 4)``."""
     cfg, refine = model.config, _kernel_weights(model).refine
     ppc = cfg.pixels_per_cell
@@ -942,7 +980,7 @@ def _refine_products(feats: _BandFeatures, model: VehicleClassifier, band: _Band
     return out
 
 
-def _refine_hog(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
+def _refine_hog(feats: _BandFeatures, model: WindowScorer, rows: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
     """The HOG part of :func:`_refine_products` for the windows at ``rows``, ``cols``, added to ``out`` (n, 4)."""
     refine = _kernel_weights(model).refine
     if feats.blocks is not None:
@@ -951,7 +989,7 @@ def _refine_hog(feats: _BandFeatures, model: VehicleClassifier, rows: np.ndarray
         _hog_products_crop(feats.variants, model.config.cells_per_block, refine[0], rows, cols, out)
 
 
-def _score_band(band: _Band, model: VehicleClassifier, reuse: bool = True, hog_blocks: bool = True,
+def _score_band(band: _Band, model: WindowScorer, reuse: bool = True, hog_blocks: bool = True,
                 refine_above: float | None = None,
                 cascade: tuple[float, float] | None = None, frame: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Margins of the windows of ``band``, and the box refinement's products of the hot ones.
@@ -1007,7 +1045,7 @@ def _scheduled_mask(band: _Band, config: FeatureConfig, plan: SearchPlan, work_w
     return mask
 
 
-def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray, refine_above: float | None = None,
+def _score_band_where(band: _Band, model: WindowScorer, mask: np.ndarray, refine_above: float | None = None,
                       cascade: tuple[float, float] | None = None, frame: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`_score_band` of the band's windows where ``mask`` holds, flat like it.
 
@@ -1050,7 +1088,7 @@ def _score_band_where(band: _Band, model: VehicleClassifier, mask: np.ndarray, r
 
 def search(
     frame: np.ndarray,
-    model: VehicleClassifier,
+    model: WindowScorer,
     plan: SearchPlan | None = None,
     *,
     all_windows: bool = False,
@@ -1062,7 +1100,7 @@ def search(
     ----------
     frame : ndarray of uint8, shape (H, W, 3)
         RGB frame (any size; resized internally to ``plan.reference_height``).
-    model : VehicleClassifier
+    model : WindowScorer
     plan : SearchPlan, optional
         The model's own plan by default.
     all_windows : bool
@@ -1122,7 +1160,7 @@ def search(
     return Detections(np.concatenate(boxes), score=np.concatenate(scores), data=data)
 
 
-def _search_convnet(frame: np.ndarray, work: np.ndarray, f: float, model: VehicleClassifier, plan: SearchPlan, *,
+def _search_convnet(frame: np.ndarray, work: np.ndarray, f: float, model: WindowScorer, plan: SearchPlan, *,
                     all_windows: bool, around: np.ndarray | None) -> Detections:
     """:func:`search` with the model's network: each band scored whole in one pass
     (:meth:`~vehicle_detection.convnet.ConvNet.scores`), the hot windows' boxes moved by the

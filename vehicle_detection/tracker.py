@@ -33,7 +33,7 @@ from .geometry import box_iou, inset_boxes, match_boxes
 from .heatmap import _blob_boxes, _check_aspect_range, _check_min_size, _core_boxes, _peaks, add_heat, label_heat, split_blobs, vote_boxes
 
 if TYPE_CHECKING:
-    from .overlays import Overlays
+    from .footage.overlays import Overlays
 
 __all__ = [
     "window_heat","TrackerConfig", "Track", "TrackerState", "Tracker"]
@@ -302,16 +302,16 @@ class TrackerState:
         just before it); None otherwise.
     overlays : Overlays or None
         The black bars and static overlays the detector found in these frames
-        (:class:`~vehicle_detection.overlays.Overlays`; None: not looked for yet), kept for
+        (:class:`~vehicle_detection.footage.overlays.Overlays`; None: not looked for yet), kept for
         later chunks like ``horizon``. Immutable, so copies share it.
     overlays_searched : bool
         Whether the detector has looked for them.
     shot_thumbnail : ndarray of float32 or None
         The thumbnail of the last frame the detector checked for a cut between shots
-        (:mod:`~vehicle_detection.shots`), kept so that the first frame of a later chunk is
+        (:mod:`~vehicle_detection.footage.shots`), kept so that the first frame of a later chunk is
         checked against the last of the one before; None before the first frame.
     shot_changes : tuple of float
-        The changes of the last frames checked (:func:`~vehicle_detection.shots.next_shot`).
+        The changes of the last frames checked (:func:`~vehicle_detection.footage.shots.next_shot`).
     cuts : tuple of int
         The frames at which the tracker started afresh (:meth:`Tracker.cut`), in order.
     shot_start : int or None
@@ -319,7 +319,7 @@ class TrackerState:
         tracked (a range of a video starts at its first frame); None before the first frame.
     gain : float or None
         What the detector multiplies these frames by for the search (dark footage,
-        :mod:`~vehicle_detection.exposure`; 1.0 for daylight); None: not measured yet.
+        :mod:`~vehicle_detection.footage.exposure`; 1.0 for daylight); None: not measured yet.
     """
 
     integrated: np.ndarray | None = None
@@ -491,7 +491,7 @@ class Tracker:
         return [t.copy() for t in self._state.tracks if t.confirmed]
 
     def cut(self) -> None:
-        """The footage cut to another shot (:mod:`~vehicle_detection.shots`): forget the heat
+        """The footage cut to another shot (:mod:`~vehicle_detection.footage.shots`): forget the heat
         and the live tracks, confirmed or not. Track ids go on from :attr:`TrackerState.next_id`,
         and the frame counter and the footage's measurements are kept; the next frame's index
         is added to :attr:`TrackerState.cuts`."""

@@ -23,7 +23,7 @@ from ..io import plural
 from ..detections import Detections
 from ..detector import Detector
 from ..errors import InputError, OutputError, UsageError, require
-from ..horizon import TOLERANCE
+from ..footage.horizon import TOLERANCE
 from ..io import FORMATS, Encoding, check_outputs, output_batch, write_tables
 from ..io.images import IMAGE_EXTENSIONS, check_image_output, list_images, read_image, write_image
 from ..io.video import check_video_output, probe_video

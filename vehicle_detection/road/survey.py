@@ -21,7 +21,7 @@ from ..detections import Detections
 from ..errors import InputError
 from ..io.tables import DISTANCE_COLUMNS
 from ..io.video import probe_video
-from ..shots import ShotCuts, next_shot
+from ..footage.shots import ShotCuts, next_shot
 from .autocamera import EstimateSettings, RoadEstimate, estimate_birds_eye, road_transform
 from .camera import Camera
 from .distance import DistanceTracker
@@ -146,7 +146,7 @@ class Road:
     def survey(self, fps: float = 25.0, *, shot_cuts: ShotCuts | None = None) -> RoadSurvey:
         """The road of one video at ``fps`` frames per second (or of one image), from its first
         frame; with ``shot_cuts``, the lane is found afresh after each cut between shots
-        (:mod:`~vehicle_detection.shots`)."""
+        (:mod:`~vehicle_detection.footage.shots`)."""
         return RoadSurvey(self, fps, shot_cuts=shot_cuts)
 
 

@@ -9,6 +9,12 @@ Downloads are resume-safe. Bytes are written to ``NAME.part`` beside the destina
 name is always whole. An interrupted transfer keeps its ``.part`` file, and the next call asks the
 server for the rest (an HTTP ``Range`` request) instead of starting again.
 
+This is why the download is not pooch's (the field's downloader, as scikit-image uses it): pooch
+1.9 streams into a temporary file that it deletes when the transfer breaks, so an interrupted
+download of these archives (tens of MB each) starts again from zero; and it would add
+``requests`` to the command-line install. What pooch gives besides (a checksum, an atomic
+rename) is done here too.
+
 The md5 sums of the public originals are not known, so the archives are checked structurally:
 each must be a readable zip whose PNG members fall into the expected folders in the expected
 numbers (see :data:`ARCHIVES`). A known md5 can still be given to :func:`download_file`.

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._settings import JsonSettings, number_in
+from .._settings import JsonSettings, number_in
 
 __all__ = ["Exposure", "brighten", "exposure_gain", "picture_level"]
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._settings import JsonSettings, number_in
+from .._settings import JsonSettings, number_in
 
 __all__ = ["THUMBNAIL", "ShotCuts", "frame_change", "next_shot", "thumbnail"]
 

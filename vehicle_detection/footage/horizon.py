@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._settings import JsonSettings, number_in
+from .._settings import JsonSettings, number_in
 
 __all__ = ["vanishing_row", "estimate_horizon", "TOLERANCE", "CarHorizon", "implied_horizon", "horizon_from_cars"]
 
