@@ -390,7 +390,7 @@ def detected_clip(tmp_path_factory):
     d = tmp_path_factory.mktemp("clip")
     clip = cut_video(TEST_VIDEO, d / "clip8.mp4", 8)
     before = sha256(clip)
-    assert main(["detect", str(clip), "--no-progress"]) == 0
+    assert main(["detect", str(clip), "--no-progress", "--out-dir", str(d)]) == 0
     return clip, before
 
 
@@ -414,9 +414,9 @@ def test_detect_video_second_run_needs_overwrite(detected_clip):
     clip, before = detected_clip
     out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
     outputs = {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)}
-    proc = run_cli("detect", str(clip), "--no-progress")
+    proc = run_cli("detect", str(clip), "--no-progress", "--out-dir", str(clip.parent))
     assert proc.returncode == 5
-    assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}{out}: output exists; pass --overwrite (overwrite=True) to replace it"]
+    assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}{out}: output exists; pass --overwrite to replace it"]
     assert {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)} == outputs
     assert main(["detect", str(clip), "--no-progress", "--overwrite"]) == 0
     for p, (_, inode) in outputs.items():

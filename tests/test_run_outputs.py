@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from vehicle_detection.cli import main
-from vehicle_detection.errors import OutputError, UsageError, cli_message
+from vehicle_detection.errors import OutputError, UsageError
 from vehicle_detection.io import check_output_path
 from vehicle_detection.pipeline.batch import detect_many
 from vehicle_detection.pipeline.inputs import InputOptions
@@ -104,6 +104,8 @@ def test_refusals_name_the_flag_not_the_python_keyword(layout, capsys):
 
 
 def test_the_python_api_keeps_its_keywords(tmp_path):
+    from vehicle_detection.errors import cli_message
+
     (tmp_path / "o.csv").write_text("x")
     with pytest.raises(OutputError) as info:
         check_output_path(tmp_path / "o.csv")
