@@ -683,7 +683,7 @@ def test_evaluate_report_refuses_a_folder_with_files(scored_case, tmp_path, caps
     (report / "notes.txt").write_text("mine\n")
     assert main(_report_args(labels, boxes, report)) == 5
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"{ERROR_PREFIX}{report}: report folder exists and is not empty; pass --overwrite (overwrite=True) to replace its files"]
+    assert err == [f"{ERROR_PREFIX}{report}: report folder exists and is not empty; pass --overwrite to replace its files"]
     assert [p.name for p in report.iterdir()] == ["notes.txt"]
     # A file where the folder should be: refused too, with or without --overwrite.
     assert main(_report_args(labels, boxes, report / "notes.txt", "--overwrite")) == 5

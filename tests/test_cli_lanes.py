@@ -334,7 +334,7 @@ def test_an_existing_report_or_camera_file_is_refused_before_any_work(clips, tmp
     code, out, err = run(capsys, "detect", clips / "v.mp4", "--boxes", tmp_path / "b.csv", "--no-video", "--report", "--save-camera",
                          tmp_path / "C.json", "--no-progress")
     assert code == 5 and out == []
-    assert err == [f"vehicle-detection: error: {tmp_path / existing}: output exists; pass --overwrite (overwrite=True) to replace it"]
+    assert err == [f"vehicle-detection: error: {tmp_path / existing}: output exists; pass --overwrite to replace it"]
     assert sorted(p.name for p in tmp_path.iterdir()) == before and (tmp_path / existing).read_text() == "earlier"
 
 
