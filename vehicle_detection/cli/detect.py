@@ -140,7 +140,7 @@ def _detect_one(args, options: InputOptions, human) -> int:
         raise InputError(unknown_type(inp))
     # Every default output in one folder (--out-dir, else --out's, else the current one), under one
     # name (--out's, else the input's); an output named by its own flag goes where it says.
-    folder = Path(args.out_dir) if args.out_dir is not None else None if args.out else CURRENT_FOLDER
+    folder = Path(args.out_dir) if args.out_dir is not None else None if args.out else _default_folder(inp, kind)
     outputs = default_outputs(inp, kind, folder, options.formats, video=options.video, annotated=args.out,
                               report=options.report, camera=args.save_camera == "")
     named = {"csv": args.boxes, "lanes": args.lanes_csv}
@@ -152,6 +152,16 @@ def _detect_one(args, options: InputOptions, human) -> int:
     if args.json:
         print(json.dumps({"inputs": [_result_dict(result)]}, allow_nan=False))
     return 0
+
+
+def _default_folder(inp: Path, kind: str) -> Path | None:
+    """The current folder; but beside a folder of images run from inside it (``detect .``), where the
+    current folder would put the outputs among the inputs (None: beside the input)."""
+    if kind == "folder":
+        here, folder = Path.cwd().resolve(), inp.resolve()
+        if here == folder or folder in here.parents:
+            return None
+    return CURRENT_FOLDER
 
 
 def _print_result(r: InputResult, human) -> None:
