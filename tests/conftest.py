@@ -28,6 +28,22 @@ requires_data = pytest.mark.skipif(
 )
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _in_session_tmp_path(tmp_path_factory):
+    """The session's fixtures too (module-scoped runs of the command line) write nowhere in the checkout."""
+    before = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("cwd"))
+    yield
+    os.chdir(before)
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp_path(tmp_path, monkeypatch):
+    """Each test runs in its own temporary folder: the command line writes its default outputs
+    into the current folder, never into the checkout."""
+    monkeypatch.chdir(tmp_path)
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     if not has_training_data():

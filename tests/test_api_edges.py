@@ -123,3 +123,54 @@ def test_from_supervision_of_another_detector_takes_its_confidence():
     sv = pytest.importorskip("supervision")
     other = sv.Detections(xyxy=np.array([[0.0, 0.0, 10.0, 10.0]]), confidence=np.array([0.8]), class_id=np.array([2]))
     assert Detections.from_supervision(other).score.tolist() == [0.8]
+
+
+# --- frames the detector takes, and those it refuses ---------------------------------------------
+
+
+def test_grey_image_finds_what_its_rgb_stacked_copy_finds(detector):
+    grey = read_image(TEST1)[..., 1].copy()
+    rgb = np.repeat(grey[:, :, None], 3, axis=2)
+    assert detector.detect_image(grey) == detector.detect_image(rgb) == detector.detect_image(grey[:, :, None])
+    # A grey video, frame by frame and tracked: the same as its RGB copy (it crashed in OpenCV before).
+    frames = [np.ascontiguousarray(f[::4, ::4, 1]) for f in read_frames_of_test_video(3)]
+    tracked = [list(map(repr, detector.track(fs, workers=1))) for fs in (frames, [np.dstack([f] * 3) for f in frames])]
+    assert tracked[0] == tracked[1] and len(tracked[0]) == 3
+    tracker = detector.new_tracker()
+    assert len(detector.step(frames[0], tracker)) == 0 and tracker.state.frame_index == 1
+
+
+def read_frames_of_test_video(n: int) -> list[np.ndarray]:
+    import itertools
+
+    from vehicle_detection.io.video import read_frames
+
+    video = REPO / "test_video.mp4"
+    if not video.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    return list(itertools.islice(read_frames(video), n))
+
+
+REFUSED_FRAMES = [
+    ("float", np.zeros((480, 640)), "got float64 of shape (480, 640) (0-1 versus 0-255 is ambiguous"),
+    ("batch", np.zeros((1, 72, 128, 3), np.uint8), "got uint8 of shape (1, 72, 128, 3)"),
+    ("two_channels", np.zeros((72, 128, 2), np.uint8), "got uint8 of shape (72, 128, 2)"),
+    ("int64", np.zeros((72, 128, 3), np.int64), "got int64 of shape (72, 128, 3)"),
+    ("bool", np.zeros((72, 128, 3), bool), "got bool of shape (72, 128, 3)"),
+]
+
+
+@pytest.mark.parametrize(("case", "frame", "given"), REFUSED_FRAMES, ids=[c[0] for c in REFUSED_FRAMES])
+def test_frames_the_library_cannot_use_are_refused_naming_shape_and_dtype(detector, case, frame, given):
+    expected = "expected an RGB uint8 image of shape (H, W, 3), " + given
+    calls = {
+        "detect_image": lambda: detector.detect_image(frame),
+        "windows": lambda: detector.windows(frame),
+        "step": lambda: detector.step(frame, detector.new_tracker()),
+        "track": lambda: list(detector.track([frame], workers=1)),
+        "shot_cut": lambda: detector.shot_cut(frame, detector.new_tracker()),
+    }
+    for name, call in calls.items():
+        with pytest.raises(ValueError) as info:  # an InputError: the CLI's exit code 3
+            call()
+        assert isinstance(info.value, InputError) and expected in str(info.value), (name, str(info.value))

@@ -182,7 +182,7 @@ def test_bgr_rgb_boundary(tmp_path):
     # (the usual sign of an unconverted OpenCV/matplotlib image) are refused, not guessed.
     with pytest.raises(InputError) as info:
         as_rgb_uint8(pic.astype(np.float32) / 255, name="frame 3")
-    assert_error(info, "frame 3", "expected an RGB uint8 image, got dtype float32", "ambiguous")
+    assert_error(info, "frame 3", "expected an RGB uint8 image of shape (H, W, 3), got float32 of shape (48, 64, 3)", "ambiguous")
 
 
 def test_wrong_patch_size_for_the_classifier_refused():

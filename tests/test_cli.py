@@ -390,7 +390,7 @@ def detected_clip(tmp_path_factory):
     d = tmp_path_factory.mktemp("clip")
     clip = cut_video(TEST_VIDEO, d / "clip8.mp4", 8)
     before = sha256(clip)
-    assert main(["detect", str(clip), "--no-progress"]) == 0
+    assert main(["detect", str(clip), "--no-progress", "--out-dir", str(d)]) == 0
     return clip, before
 
 
@@ -414,11 +414,11 @@ def test_detect_video_second_run_needs_overwrite(detected_clip):
     clip, before = detected_clip
     out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
     outputs = {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)}
-    proc = run_cli("detect", str(clip), "--no-progress")
+    proc = run_cli("detect", str(clip), "--no-progress", "--out-dir", str(clip.parent))
     assert proc.returncode == 5
-    assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}{out}: output exists; pass --overwrite (overwrite=True) to replace it"]
+    assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}{out}: output exists; pass --overwrite to replace it"]
     assert {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)} == outputs
-    assert main(["detect", str(clip), "--no-progress", "--overwrite"]) == 0
+    assert main(["detect", str(clip), "--no-progress", "--overwrite", "--out-dir", str(clip.parent)]) == 0
     for p, (_, inode) in outputs.items():
         assert p.stat().st_ino != inode  # replaced by a new, complete file
     assert sha256(clip) == before
@@ -436,7 +436,7 @@ def test_detect_mpeg_ts_video(tmp_path, capsys, suffix):
     clip = media.encode(tmp_path / f"cam{suffix}", media.moving_square_frames(5, 320, 180), codec="mpeg2video",
                         format="mpegts", container_options={"mpegts_m2ts_mode": "1"} if suffix == ".m2ts" else {})  # fmt: skip
     assert main(["detect", str(clip), "--no-progress"]) == 0
-    out, boxes = tmp_path / "cam_detected.mp4", tmp_path / "cam_boxes.csv"
+    out, boxes = Path("cam_detected.mp4"), Path("cam_boxes.csv")  # in the current folder, tmp_path
     assert capsys.readouterr().out.splitlines()[0].endswith(f"; wrote {out}, {boxes}")
     assert probe_video(out).size == (320, 180)
     assert sum(1 for _ in read_frames(out)) == 5
@@ -683,7 +683,7 @@ def test_evaluate_report_refuses_a_folder_with_files(scored_case, tmp_path, caps
     (report / "notes.txt").write_text("mine\n")
     assert main(_report_args(labels, boxes, report)) == 5
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"{ERROR_PREFIX}{report}: report folder exists and is not empty; pass --overwrite (overwrite=True) to replace its files"]
+    assert err == [f"{ERROR_PREFIX}{report}: report folder exists and is not empty; pass --overwrite to replace its files"]
     assert [p.name for p in report.iterdir()] == ["notes.txt"]
     # A file where the folder should be: refused too, with or without --overwrite.
     assert main(_report_args(labels, boxes, report / "notes.txt", "--overwrite")) == 5

@@ -214,15 +214,16 @@ def test_json_is_one_object_on_stdout_with_the_human_lines_on_stderr(clips, tmp_
 
 
 @needs_matplotlib
-def test_detect_report_beside_the_outputs_alone_and_in_a_batch(clips, tmp_path, capsys):
+def test_detect_report_with_the_default_outputs_alone_and_in_a_batch(clips, tmp_path, capsys):
+    # --boxes names the boxes CSV alone: the report is a default output, in the current folder.
     named = tmp_path / "named"
     code, out, err = run(capsys, "detect", clips / "v.mp4", "--boxes", named / "b.csv", "--lanes", "--no-video", "--report",
                          "--no-progress")
     assert code == 0, err
-    page = (named / "v_report.html").read_text()
+    page = (tmp_path / "v_report.html").read_text()
     assert "<h2>Track timeline</h2>" in page and "<h2>Lanes</h2>" in page and "<h2>Distances</h2>" in page
     assert page.count("data:image/jpeg;base64,") >= 3  # crops cut from the video
-    assert "<script" not in page and str(named / "v_report.html") in out[0]
+    assert "<script" not in page and out[0].endswith(f"; wrote {named / 'b.csv'}, v_report.html")
     batch = tmp_path / "batch"
     code, out, err = run(capsys, "detect", clips / "v.mp4", clips / "w.mp4", "--out-dir", batch, "--no-video", "--report",
                          "--no-progress")
@@ -334,7 +335,8 @@ def test_an_existing_report_or_camera_file_is_refused_before_any_work(clips, tmp
     code, out, err = run(capsys, "detect", clips / "v.mp4", "--boxes", tmp_path / "b.csv", "--no-video", "--report", "--save-camera",
                          tmp_path / "C.json", "--no-progress")
     assert code == 5 and out == []
-    assert err == [f"vehicle-detection: error: {tmp_path / existing}: output exists; pass --overwrite (overwrite=True) to replace it"]
+    shown = existing if existing == "v_report.html" else tmp_path / existing  # the report: in the current folder, tmp_path
+    assert err == [f"vehicle-detection: error: {shown}: output exists; pass --overwrite to replace it"]
     assert sorted(p.name for p in tmp_path.iterdir()) == before and (tmp_path / existing).read_text() == "earlier"
 
 

@@ -59,8 +59,8 @@ def test_out_puts_every_output_of_the_run_beside_it(tmp_path, capsys):
     out = tmp_path / "o" / "t.mp4"
     assert main(["detect", str(video), "--out", str(out), "--format", "csv,mot", "--no-progress"]) == 0
     assert sorted(p.name for p in video.parent.iterdir()) == ["clip.mp4"]  # nothing beside the input
-    assert sorted(p.name for p in out.parent.iterdir()) == ["clip_boxes.csv", "clip_mot.txt", "t.mp4"]
-    assert len(read_boxes_csv(out.parent / "clip_boxes.csv")) > 0
+    assert sorted(p.name for p in out.parent.iterdir()) == ["t.mp4", "t_boxes.csv", "t_mot.txt"]  # named after --out
+    assert len(read_boxes_csv(out.parent / "t_boxes.csv")) > 0
     # A folder of images: the annotated folder, its boxes.csv inside, the other tables beside it.
     shots = tmp_path / "shots"
     shots.mkdir()
@@ -69,7 +69,7 @@ def test_out_puts_every_output_of_the_run_beside_it(tmp_path, capsys):
     drawn = tmp_path / "o2" / "drawn"
     assert main(["detect", str(shots), "--out", str(drawn), "--format", "csv,coco"]) == 0
     assert sorted(p.name for p in shots.iterdir()) == ["test1.jpg", "test2.jpg"]
-    assert sorted(p.name for p in drawn.parent.iterdir()) == ["drawn", "shots_coco.json"]
+    assert sorted(p.name for p in drawn.parent.iterdir()) == ["drawn", "drawn_coco.json"]
     assert sorted(p.name for p in drawn.iterdir()) == ["boxes.csv", "test1.jpg", "test2.jpg"]
 
 

@@ -62,6 +62,14 @@ def _load_kernels(model: VehicleClassifier, plan) -> None:
         pass
 
 
+def _rgb_frames(frames: Iterable, first: int) -> Iterator[np.ndarray]:
+    """``frames`` as RGB ``uint8`` ``(H, W, 3)`` (:func:`~vehicle_detection.io.images.as_rgb_uint8`:
+    grey, RGBA and uint16 converted, anything else refused naming the frame), the first one
+    being frame ``first``."""
+    for i, frame in enumerate(frames, start=first):
+        yield as_rgb_uint8(frame, name=f"frame {i}")
+
+
 def _footage_overlays(first: list) -> Overlays | None:
     """The overlays of a video's first frames, measured on those up to the first that is not RGB
     ``uint8`` of the first one's shape (the search reports that one, where it always has)."""
@@ -485,11 +493,14 @@ class Detector:
     def step(self, frame: np.ndarray, tracker: Tracker) -> Detections:
         """Detect in one frame and advance ``tracker`` by it (live use: no lag, no back-fill).
 
+        ``frame`` is converted as :meth:`track` says (grey becomes RGB; floats are refused).
+
         Live, nothing is seen ahead, so the horizon is not estimated: the plan as written, or
         :meth:`with_horizon`; each frame is cut from its own black bars, and nothing is masked
         unless :meth:`with_overlays` says. A frame that starts a new shot is searched whole,
         and the tracker starts afresh there (:meth:`shot_cut`).
         """
+        frame = as_rgb_uint8(frame, name=f"frame {tracker.state.frame_index}")  # grey, RGBA, uint16: RGB once, here
         cut = self.shot_cut(frame, tracker)
         around = None if cut else self._scheduled_around(tracker, tracker.state.frame_index, tracker.shot_start)
         wins = self.windows(frame) if around is None else self.windows(frame, around)
@@ -531,6 +542,7 @@ class Detector:
         rule = self.config.shot_cuts
         if rule is None:
             return False
+        frame = as_rgb_uint8(frame, name="frame")
         st = tracker.state
         cut, st.shot_thumbnail, st.shot_changes = next_shot(frame, st.shot_thumbnail, st.shot_changes, rule)
         return cut
@@ -549,6 +561,7 @@ class Detector:
         fit = self.config.side_fit
         if fit is None or not len(found):
             return found
+        frame = as_rgb_uint8(frame, name="frame")
         return found.replace(xyxy=fit_sides(frame, found.xyxy, fit, area=area if area is not None else self._area()))
 
     def track_frames(
@@ -618,6 +631,9 @@ class Detector:
         the frames it gets back). ``before``: the frames just before ``frames`` (a chunk's
         predecessors), so that such a measurement early in a chunk sees what a whole run sees.
         """
+        frames = _rgb_frames(frames, tracker.state.frame_index)  # each frame checked and converted once, here
+        before = list(before)
+        before = list(_rgb_frames(before, tracker.state.frame_index - len(before)))
         clock = timing(timeline)
         t = clock.now()
         compile_search_kernels(self.model)  # on a fresh install, on both cores; here, so that Ctrl-C stops it
@@ -694,7 +710,9 @@ class Detector:
         Parameters
         ----------
         frames : iterable of ndarray
-            Decoded frames in order.
+            Decoded frames in order, RGB ``uint8`` ``(H, W, 3)``; grey ``(H, W)`` or ``(H, W, 1)``,
+            RGBA and ``uint16`` frames are converted (:func:`~vehicle_detection.io.images.as_rgb_uint8`),
+            anything else is refused with an ``InputError`` (a ``ValueError``) naming the frame.
         tracker : Tracker, optional
             Pass the tracker of an earlier chunk to continue where it stopped (its frame
             counter continues too); a new one by default.

@@ -23,14 +23,29 @@ __all__ = [
     "ClusterError",
     "MissingDependencyError",
     "one_line",
+    "cli_message",
+    "output_exists",
     "require",
 ]
 
 
 class VehicleDetectionError(Exception):
-    """Base class of the errors a user can cause; ``exit_code`` is the CLI's exit status."""
+    """Base class of the errors a user can cause; ``exit_code`` is the CLI's exit status.
+
+    Parameters
+    ----------
+    *args
+        As for :class:`Exception`: the message (the Python API's words, e.g. ``overwrite=True``).
+    cli : str, optional
+        The same message in the command line's words (its flags, e.g. ``--overwrite``), when
+        they differ; the command line prints it (:func:`cli_message`).
+    """
 
     exit_code = 3
+
+    def __init__(self, *args, cli: str | None = None) -> None:
+        super().__init__(*args)
+        self.cli = cli
 
 
 class UsageError(VehicleDetectionError, ValueError):
@@ -91,6 +106,33 @@ class MissingDependencyError(VehicleDetectionError, ImportError):
 def one_line(exc: BaseException) -> str:
     """The message of ``exc`` on one line (ffmpeg and file names can bring line breaks)."""
     return " | ".join(part.strip() for part in str(exc).splitlines() if part.strip())
+
+
+def cli_message(exc: BaseException) -> str:
+    """The one-line message of ``exc`` as the command line says it: its ``cli`` form when it has one.
+
+    >>> cli_message(output_exists("out.csv"))
+    'out.csv: output exists; pass --overwrite to replace it'
+    >>> str(output_exists("out.csv"))
+    'out.csv: output exists; pass overwrite=True to replace it'
+    """
+    cli = getattr(exc, "cli", None)
+    return one_line(cli if cli is not None else exc)
+
+
+def output_exists(dest, what: str = "output exists", remedy: str = "to replace it") -> OutputError:
+    """The error for an output that exists and may not be replaced, in the API's and the CLI's words.
+
+    Parameters
+    ----------
+    dest : path-like
+        The output.
+    what : str
+        What is there (``"report folder exists and is not empty"``).
+    remedy : str
+        What the flag would do (``"to replace its files"``).
+    """
+    return OutputError(f"{dest}: {what}; pass overwrite=True {remedy}", cli=f"{dest}: {what}; pass --overwrite {remedy}")
 
 
 def require(module: str, extra: str, feature: str) -> ModuleType:

@@ -2,13 +2,17 @@
 
 Every input, alone or in a batch, is run by :func:`~vehicle_detection.pipeline.inputs.run_input`
 with the same :class:`~vehicle_detection.pipeline.inputs.InputOptions` (frames, camera and
-lanes, tables, video or not, encoding, report). One input may name its outputs (``--out``, ``--boxes``,
-``--lanes-csv``, ``--save-camera``); a batch (several inputs, globs, a folder of videos, or a batch-only
-option) writes default names and runs :func:`~vehicle_detection.pipeline.batch.detect_many`.
+lanes, tables, video or not, encoding, report). A run's outputs go together: every default output
+(annotated video, image or folder, tables, report, camera file) goes into one folder, ``--out-dir``,
+else the folder of ``--out``, else the current folder (:data:`CURRENT_FOLDER`), under the default
+names of :func:`~vehicle_detection.pipeline.inputs.default_outputs` (after ``--out``'s name when
+given). One input may name its outputs one by one (``--out``, ``--boxes``, ``--lanes-csv``,
+``--save-camera PATH``); a batch (several inputs, globs, a folder of videos, or a batch-only option)
+writes default names and runs :func:`~vehicle_detection.pipeline.batch.detect_many`.
 
 Lanes without a camera file with a bird's-eye transform: each input's road plane is estimated from
 its own frames (:meth:`~vehicle_detection.road.survey.Road.for_footage`), printed, and saved with
-``--save-camera``; where the footage shows no lane lines, the input runs without lanes and says so.
+``--save-camera`` (``NAME_camera.json`` with the other outputs, or ``--save-camera PATH``); where the footage shows no lane lines, the input runs without lanes and says so.
 
 Each input ends with one summary line (:meth:`~vehicle_detection.viz.report.RunSummary.line`).
 With ``--json``, standard output is one JSON object (``inputs``: each input's summary, notes and
@@ -40,13 +44,18 @@ __all__ = ["run", "SOME_FAILED"]
 #: Exit status of a batch in which some inputs failed (each is reported on stderr).
 SOME_FAILED = 7
 
+#: Where a run's outputs go without --out-dir or --out: the current folder, as most commands do.
+#: Not beside the input: that writes into data folders (perhaps read-only, or shared), and a later
+#: ``detect FOLDER`` would take the annotated videos there for inputs.
+CURRENT_FOLDER = Path(".")
+
 #: Options that only a batch has (with one input, they run a batch of one).
 _BATCH_ONLY = ("skip_existing", "table", "scheduler", "chunk_frames")
 
 
 def run(args) -> int:
     batch = _is_batch(args)
-    if batch and (args.out or args.boxes or args.lanes_csv or args.save_camera):
+    if batch and (args.out or args.boxes or args.lanes_csv or args.save_camera is not None):
         raise UsageError("--out, --boxes, --lanes-csv and --save-camera name the outputs of one input; in a batch use "
                          "--out-dir (default names) and --format lanes")
     if args.scheduler_timeout is not None and args.scheduler is None:
@@ -129,14 +138,14 @@ def _detect_one(args, options: InputOptions, human) -> int:
     kind = input_kind(inp)
     if kind is None:
         raise InputError(unknown_type(inp))
-    outputs = default_outputs(inp, kind, None if args.out_dir is None else Path(args.out_dir), options.formats, video=options.video,
-                              annotated=args.out, report=options.report)
+    # Every default output in one folder (--out-dir, else --out's, else the current one), under one
+    # name (--out's, else the input's); an output named by its own flag goes where it says.
+    folder = Path(args.out_dir) if args.out_dir is not None else None if args.out else _default_folder(inp, kind)
+    outputs = default_outputs(inp, kind, folder, options.formats, video=options.video, annotated=args.out,
+                              report=options.report, camera=args.save_camera == "")
     named = {"csv": args.boxes, "lanes": args.lanes_csv}
     tables = {**outputs.tables, **{fmt: Path(p) for fmt, p in named.items() if p}}
-    beside = args.boxes or args.out  # the report goes with the outputs the user named
-    report = outputs.report if outputs.report is None or not beside else Path(beside).parent / outputs.report.name
-    outputs = replace(outputs, annotated=Path(args.out) if args.out else outputs.annotated, tables=tables, report=report,
-                      camera=None if args.save_camera is None else Path(args.save_camera))
+    outputs = replace(outputs, tables=tables, camera=Path(args.save_camera) if args.save_camera else outputs.camera)
     detector = load_detector(args.model, args.horizon, args.full_search_every, args.traffic)
     result = run_input(inp, options, detector=detector, outputs=outputs)
     _print_result(result, human)
@@ -145,10 +154,20 @@ def _detect_one(args, options: InputOptions, human) -> int:
     return 0
 
 
+def _default_folder(inp: Path, kind: str) -> Path | None:
+    """The current folder; but beside a folder of images run from inside it (``detect .``), where the
+    current folder would put the outputs among the inputs (None: beside the input)."""
+    if kind == "folder":
+        here, folder = Path.cwd().resolve(), inp.resolve()
+        if here == folder or folder in here.parents:
+            return None
+    return CURRENT_FOLDER
+
+
 def _print_result(r: InputResult, human) -> None:
     """An input's lines for people: its summary (or error, or skip), then its notes."""
     if r.error is not None:
-        print(f"vehicle-detection: error: {r.error}", file=sys.stderr, flush=True)
+        print(f"vehicle-detection: error: {r.cli_message}", file=sys.stderr, flush=True)
     elif r.skipped:
         print(f"{r.path}: skipped, outputs complete", file=human, flush=True)
     else:
@@ -159,7 +178,7 @@ def _print_result(r: InputResult, human) -> None:
 def _result_dict(r: InputResult) -> dict:
     """An input's part of ``--json``: its summary, notes and road estimate; or its error, or its skip."""
     if r.error is not None:
-        return {"input": str(r.path), "error": r.error, "exit_code": r.exit_code}
+        return {"input": str(r.path), "error": r.cli_message, "exit_code": r.exit_code}
     if r.skipped:
         return {"input": str(r.path), "skipped": True, "outputs": [str(o) for o in r.outputs]}
     d = {**r.summary.to_dict(), "notes": list(r.notes)}
@@ -178,7 +197,7 @@ def _detect_many(args, options: InputOptions, human) -> int:
 
     detector = load_detector(args.model, args.horizon, args.full_search_every, args.traffic)
     results = detect_many(
-        args.inputs, args.out_dir, options, detector=detector, jobs=args.jobs, skip_existing=args.skip_existing,
+        args.inputs, CURRENT_FOLDER if args.out_dir is None else args.out_dir, options, detector=detector, jobs=args.jobs, skip_existing=args.skip_existing,
         table=args.table, client=args.scheduler, chunk_frames=args.chunk_frames, on_result=report,
         scheduler_timeout=args.scheduler_timeout or SCHEDULER_TIMEOUT,
     )

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from contextlib import contextmanager
 
 from .. import warmup
-from ..errors import VehicleDetectionError, one_line
+from ..errors import VehicleDetectionError, cli_message, one_line
 from ..io import interrupt_on_signals
 
 __all__ = ["main", "run", "COMMANDS", "SEARCHING"]
@@ -180,7 +180,7 @@ def _run(args) -> int:
     except VehicleDetectionError as exc:
         if args.debug:
             traceback.print_exc()
-        print(f"vehicle-detection: error: {one_line(exc)}", file=sys.stderr)
+        print(f"vehicle-detection: error: {cli_message(exc)}", file=sys.stderr)  # in the CLI's words (its flags)
         return exc.exit_code
     except Exception as exc:  # a bug: one line, and how to see more
         if args.debug:

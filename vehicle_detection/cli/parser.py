@@ -253,15 +253,17 @@ def _add_detect(sub) -> None:
     p = sub.add_parser(
         "detect", help="detect vehicles in images, folders of images, and videos",
         description="Detect and track vehicles. One INPUT (an image, a folder of images or a video) writes its "
-        "outputs next to it (or --out-dir, or --out, --boxes, --lanes-csv). Several inputs, globs, folders of videos, "
+        "outputs together into the current folder (or --out-dir DIR, or the folder of --out, named after it); "
+        "--boxes, --lanes-csv and --save-camera PATH name one output each. Several inputs, globs, folders of videos, "
         "or any of the batch options (--jobs, --skip-existing, --table, --scheduler, --chunk-frames) run a batch: "
         "each input is processed on its own, with the same options as one input, a failing one is reported by name "
         "and the others go on; the exit status is 7 when some failed (or the input's own code with one input).",
     )
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="image, folder of images or videos, video, or glob pattern")
-    p.add_argument("--out", default=None, help="annotated output of a single input (default: next to the input, *_detected)")
-    p.add_argument("--boxes", default=None, help="CSV of boxes of a single input (default: next to the input, *_boxes.csv)")
-    p.add_argument("--out-dir", default=None, metavar="DIR", help="write every input's outputs into DIR (default names)")
+    p.add_argument("--out", default=None, help="annotated output of a single input (default: NAME_detected in the current folder); the other "
+                   "outputs go beside it, named after it (OUT_boxes.csv, ...)")
+    p.add_argument("--boxes", default=None, help="CSV of boxes of a single input (default: NAME_boxes.csv with the other outputs)")
+    p.add_argument("--out-dir", default=None, metavar="DIR", help="write every input's outputs into DIR (default: the current folder; default names)")
     p.add_argument("--no-video", action="store_true", help="write the tables only: no annotated video or images")
     p.add_argument("--start", type=int, default=None, metavar="A", help="first decoded frame (default 0)")
     p.add_argument("--end", type=int, default=None, metavar="B", help="stop before this decoded frame (default: the end)")
@@ -303,9 +305,10 @@ def _add_detect(sub) -> None:
                    "(printed); an input without visible lane lines runs without lanes, saying so")
     p.add_argument("--lanes-csv", default=None, metavar="L.csv",
                    help="write frame,curvature_m,offset_m per frame of a single input (implies --lanes; a batch: --format lanes)")
-    p.add_argument("--save-camera", default=None, metavar="C.json",
+    p.add_argument("--save-camera", nargs="?", const="", default=None, metavar="C.json",
                    help="save the road plane estimated from the footage of a single input as a camera file, for "
-                   "--camera C.json next time (implies --lanes; written only when a plane is found)")
+                   "--camera C.json next time (default: NAME_camera.json with the other outputs; implies --lanes; "
+                   "written only when a plane is found)")
     p.add_argument("--dash-period", type=_dash_period, default=None, metavar="M",
                    help="lanes without a camera file: metres from the start of one dash of a lane line to the start of "
                    "the next, which sets the scale along the road, so the distances (default 12: a US lane line, 10 ft of "

@@ -27,7 +27,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from ..errors import InputError, OutputError, VehicleDetectionError
+from ..errors import InputError, OutputError, VehicleDetectionError, output_exists
 
 __all__ = [
     "atomic_output",
@@ -124,7 +124,7 @@ def check_output_path(
                 raise OutputError(f"{dest}: cannot write output here: {folder} is {what}, not a folder")
             break
     if dest.exists() and not overwrite:
-        raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
+        raise output_exists(dest)
     return dest
 
 
@@ -250,7 +250,7 @@ def _commit(entries: list[tuple[Path, Path, bool]]) -> None:
         for tmp, dest, overwrite in entries:  # all checks before the first rename
             _refuse_special(dest)
             if dest.exists() and not overwrite:
-                raise OutputError(f"{dest}: output appeared while writing; pass --overwrite to replace it")
+                raise output_exists(dest, "output appeared while writing")
             try:
                 os.chmod(tmp, 0o666 & ~umask())  # mkstemp creates 0600; give the usual permissions
             except OSError as exc:

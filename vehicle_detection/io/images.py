@@ -64,6 +64,9 @@ __all__ = [
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 
+#: What an image array must be, for messages (grey (H, W) and (H, W, 1), RGBA and uint16 are converted).
+EXPECTED_IMAGE = "expected an RGB uint8 image of shape (H, W, 3)"
+
 #: Largest image, in pixels, decoded (decompression bombs). Checked here, image by image, rather
 #: than by changing Pillow's global ``Image.MAX_IMAGE_PIXELS`` for the whole process.
 MAX_IMAGE_PIXELS = 100_000_000
@@ -319,7 +322,9 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     Parameters
     ----------
     image : array_like
-        ``uint8`` or ``uint16`` array of shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4).
+        ``uint8`` or ``uint16`` array of shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4): a grey
+        image, (H, W) or (H, W, 1), has its grey value copied to R, G and B; RGBA has its alpha
+        dropped; uint16 is scaled to 8 bits (the rules of the module docstring).
         Channel order is taken to be RGB: the library cannot tell BGR from RGB by content, so
         arrays from ``cv2.imread`` must be converted by the caller (``image[..., ::-1]``).
     name : str
@@ -333,25 +338,33 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     Raises
     ------
     InputError
-        Float, bool or signed arrays, wrong number of dimensions or channels, empty images, or
-        images of more than ``MAX_IMAGE_PIXELS`` (100 million) pixels.
+        (a ``ValueError``) Float, bool or signed arrays, wrong number of dimensions or channels,
+        naming the dtype and shape expected and given; empty images, or images of more than
+        ``MAX_IMAGE_PIXELS`` (100 million) pixels.
+
+    Examples
+    --------
+    >>> as_rgb_uint8(np.zeros((2, 3), np.uint8)).shape
+    (2, 3, 3)
+    >>> as_rgb_uint8(np.zeros((480, 640)))
+    Traceback (most recent call last):
+    ...
+    vehicle_detection.errors.InputError: image: expected an RGB uint8 image of shape (H, W, 3), got float64 of shape (480, 640) (0-1 versus 0-255 is ambiguous; scale and convert to uint8 yourself)
     """
     arr = np.asarray(image)
     if arr.ndim >= 2 and arr.shape[0] * arr.shape[1] > MAX_IMAGE_PIXELS:  # before any copy
         raise InputError(f"{name}: image of {arr.shape[1]}x{arr.shape[0]} pixels is larger than {MAX_IMAGE_PIXELS:,} pixels")
+    if arr.dtype not in (np.uint8, np.uint16) or not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] in (1, 3, 4))):
+        hint = " (0-1 versus 0-255 is ambiguous; scale and convert to uint8 yourself)" if arr.dtype.kind == "f" else ""
+        raise InputError(f"{name}: {EXPECTED_IMAGE}, got {arr.dtype} of shape {arr.shape}{hint}")
     if arr.dtype == np.uint16:
         arr = np.rint(arr.astype(np.float32) / 257.0).astype(np.uint8)
-    elif arr.dtype != np.uint8:
-        hint = " (0-1 versus 0-255 is ambiguous; scale and convert to uint8 yourself)" if arr.dtype.kind == "f" else ""
-        raise InputError(f"{name}: expected an RGB uint8 image, got dtype {arr.dtype}{hint}")
     if arr.ndim == 2:
         arr = np.repeat(arr[:, :, None], 3, axis=2)
-    elif arr.ndim == 3 and arr.shape[2] == 1:
+    elif arr.shape[2] == 1:
         arr = np.repeat(arr, 3, axis=2)
-    elif arr.ndim == 3 and arr.shape[2] == 4:
+    elif arr.shape[2] == 4:
         arr = np.ascontiguousarray(arr[:, :, :3])
-    elif not (arr.ndim == 3 and arr.shape[2] == 3):
-        raise InputError(f"{name}: expected shape (H, W), (H, W, 3) or (H, W, 4), got {arr.shape}")
     if arr.shape[0] == 0 or arr.shape[1] == 0:
         raise InputError(f"{name}: empty image of shape {arr.shape}")
     return arr

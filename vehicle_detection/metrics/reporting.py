@@ -29,7 +29,7 @@ from PIL import Image
 
 from ..io import plural
 from ..detections import Detections
-from ..errors import InputError, OutputError
+from ..errors import InputError, OutputError, output_exists
 from ..io import atomic_output, output_batch
 from ..io.images import list_images, read_image
 from ..io.video import probe_video, read_frames
@@ -353,7 +353,7 @@ def check_report_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Pat
         if not path.is_dir():
             raise OutputError(f"{path}: exists and is not a folder; the report is a folder")
         if not overwrite and any(path.iterdir()):
-            raise OutputError(f"{path}: report folder exists and is not empty; pass --overwrite (overwrite=True) to replace its files")
+            raise output_exists(path, "report folder exists and is not empty", "to replace its files")
     return path
 
 

@@ -45,7 +45,7 @@ import numpy as np
 from ..deprecation import old_keywords
 from ..detections import Detections
 from ..detector import HORIZON_FRAMES, Detector
-from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, one_line, require
+from ..errors import ClusterError, InputError, OutputError, UsageError, VehicleDetectionError, cli_message, one_line, require
 from ..io import (
     PARTIAL_SUFFIX, check_output_path, check_outputs, interrupt_on_signals, output_batch, read_boxes_csv, read_parquet,
     write_coco, write_parquet, write_tables,
@@ -111,7 +111,8 @@ def _run_task(task: _Task) -> InputResult:
             r = run_input(task.path, task.options, detector=task.detector, outputs=task.outputs, threads=task.threads)
             return replace(r, outputs=(*r.outputs, *task.shared)) if task.shared else r
     except VehicleDetectionError as exc:
-        return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code)
+        return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code,
+                           cli_error=_message(task.path, exc, cli=True))
     except (Exception, KeyboardInterrupt) as exc:  # noqa: B902  (an interrupted worker reports it)
         if isinstance(exc, KeyboardInterrupt) and multiprocessing.parent_process() is None:
             raise
@@ -120,8 +121,9 @@ def _run_task(task: _Task) -> InputResult:
         return InputResult(task.path, error=f"{task.path}: {text}", seconds=time.perf_counter() - t, exit_code=code)
 
 
-def _message(path: Path, exc: BaseException) -> str:
-    text = one_line(exc)
+def _message(path: Path, exc: BaseException, *, cli: bool = False) -> str:
+    """The one-line error of an input, naming it; ``cli``: in the command line's words (:func:`cli_message`)."""
+    text = cli_message(exc) if cli else one_line(exc)
     return text if text.startswith(str(path)) else f"{path}: {text}"
 
 
@@ -252,7 +254,8 @@ def _run_chunked(task: _Task, client, chunk_frames: int) -> InputResult:
         with output_batch():
             write_tables(task.outputs.tables, table, name=task.path.name, overwrite=task.options.overwrite, inputs=check)
     except VehicleDetectionError as exc:
-        return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code)
+        return InputResult(task.path, error=_message(task.path, exc), seconds=time.perf_counter() - t, exit_code=exc.exit_code,
+                           cli_error=_message(task.path, exc, cli=True))
     except Exception as exc:
         lost = _cluster_failure(exc, client)
         if isinstance(exc, CancelledError):
@@ -368,9 +371,11 @@ def detect_many(
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     _check_batch(options, jobs, chunk_frames, table)
     if client is not None and jobs > 1:
-        raise UsageError("jobs (--jobs) are local worker processes; with a dask cluster (--scheduler) its workers run the inputs")
+        raise UsageError("jobs are local worker processes; with a dask cluster (client) its workers run the inputs",
+                         cli="--jobs are local worker processes; with a dask cluster (--scheduler) its workers run the inputs")
     if client is None and chunk_frames is not None:
-        raise UsageError("chunk_frames (--chunk-frames) splits videos into tasks of a dask cluster; give --scheduler too")
+        raise UsageError("chunk_frames splits videos into tasks of a dask cluster; give a client too",
+                         cli="--chunk-frames splits videos into tasks of a dask cluster; give --scheduler too")
     detector = detector or Detector()
     tasks, results = _tasks(paths, out_dir, options, detector, progress=options.progress and jobs == 1 and client is None)
     if table is not None:
@@ -399,9 +404,11 @@ def _check_batch(options: InputOptions, jobs: int, chunk_frames: int | None, tab
     if jobs < 1:
         raise UsageError("jobs must be >= 1")
     if chunk_frames is not None and (chunk_frames < 1 or options.video):
-        raise UsageError("chunk_frames (--chunk-frames) needs a number >= 1 and no video (--no-video): the encoder needs the whole video in one task")
+        raise UsageError("chunk_frames needs a number >= 1 and no video (video=False): the encoder needs the whole video in one task",
+                         cli="--chunk-frames needs a number >= 1 and --no-video: the encoder needs the whole video in one task")
     if chunk_frames is not None and (options.road.camera is not None or options.road.lanes or options.report):
-        raise UsageError("chunk_frames (--chunk-frames) runs the detector alone: no --camera, --lanes or --report")
+        raise UsageError("chunk_frames runs the detector alone: no camera, lanes or report",
+                         cli="--chunk-frames runs the detector alone: no --camera, --lanes or --report")
     if table is not None and Path(table).suffix.lower() != ".parquet":
         raise UsageError(f"{table}: the table of all inputs is a Parquet file (.parquet)")
 

@@ -36,6 +36,7 @@ from .video import frame_range, run_video
 
 __all__ = [
     "VIDEO_EXTENSIONS",
+    "CAMERA_SUFFIX",
     "InputOptions",
     "Outputs",
     "InputResult",
@@ -48,6 +49,8 @@ __all__ = [
 ]
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts", ".m2ts", ".mts")
+#: The suffix of the default name of the camera file of a road plane estimated from the footage (``NAME_camera.json``).
+CAMERA_SUFFIX = "_camera.json"
 #: What each table format is called in messages.
 _TABLE_NAMES = {"csv": "boxes CSV", "lanes": "lanes CSV"}
 
@@ -184,6 +187,9 @@ class InputResult:
     estimate : RoadEstimate or None
         The road plane estimated from the footage, or why there is none (lanes without a road
         plane); None when nothing was estimated.
+    cli_error : str or None
+        ``error`` in the command line's words (its flags, ``--overwrite``, where ``error`` says
+        ``overwrite=True``), when they differ; :attr:`cli_message` is the one to print.
     """
 
     path: Path
@@ -198,10 +204,16 @@ class InputResult:
     image: tuple | None = None
     summary: RunSummary | None = None
     estimate: RoadEstimate | None = None
+    cli_error: str | None = None
 
     @property
     def ok(self) -> bool:
         return self.error is None
+
+    @property
+    def cli_message(self) -> str | None:
+        """The error as the command line says it (None when the input did not fail)."""
+        return self.cli_error if self.cli_error is not None else self.error
 
 
 # --- inputs and output names --------------------------------------------------------------------
@@ -281,30 +293,47 @@ def default_outputs(
     video: bool = True,
     annotated: str | os.PathLike | None = None,
     report: bool = False,
+    camera: bool = False,
 ) -> Outputs:
-    """The outputs of one input under the default names.
+    """The outputs of one input under the default names, all in one folder.
 
-    Beside the input, or in ``out_dir``: ``NAME_detected.mp4`` / ``NAME_detected.EXT`` /
-    ``NAME_detected/`` (None when not ``video``) and the tables ``NAME`` + the suffix of
-    :data:`~vehicle_detection.io.formats.FORMATS` (``NAME_boxes.csv``, ...), except the boxes
-    CSV of a folder of images, ``NAME_detected/boxes.csv`` (as ``detect FOLDER``); with
-    ``report``, ``NAME_report.html``.
+    In ``out_dir``, else beside the input (the command line passes the current folder):
+    ``NAME_detected.mp4`` / ``NAME_detected.EXT`` / ``NAME_detected/`` (None when not
+    ``video``) and the tables ``NAME`` + the suffix of :data:`~vehicle_detection.io.formats.FORMATS`
+    (``NAME_boxes.csv``, ...), except the boxes CSV of a folder of images,
+    ``NAME_detected/boxes.csv`` (as ``detect FOLDER``); with ``report``, ``NAME_report.html``;
+    with ``camera``, the camera file of the road plane estimated from the footage,
+    ``NAME_camera.json``.
 
-    ``annotated`` (``--out``) names the annotated output; a run's outputs go together, so the
-    tables then go beside it (unless ``out_dir`` is given), not beside the input.
+    ``annotated`` (``--out``) names the annotated output, and the run after it: the others go
+    beside it (unless ``out_dir`` is given) and take its name, less a final ``_detected``
+    (``X/clip.mp4`` and ``X/clip_detected.mp4`` both give ``X/clip_boxes.csv``), not the input's.
+
+    Examples
+    --------
+    >>> out = default_outputs(Path("data/clip.mp4"), "video", Path("."), ("csv", "lanes"), report=True)
+    >>> [str(p) for p in out.files("video")]
+    ['clip_detected.mp4', 'clip_boxes.csv', 'clip_lanes.csv', 'clip_report.html']
+    >>> [str(p) for p in default_outputs(Path("data/clip.mp4"), "video", annotated="X/run.mp4", camera=True).files("video")]
+    ['X/run.mp4', 'X/run_boxes.csv', 'X/run_camera.json']
     """
     if path.name in ("", ".", ".."):
         path = Path(os.path.abspath(path))
+    stem = path.name if kind == "folder" else path.stem
     if annotated is not None:
         annotated = Path(annotated)
+        if annotated.name in ("", ".", ".."):
+            annotated = Path(os.path.abspath(annotated))
         if out_dir is None:
             out_dir = annotated.parent
+        named = annotated.name if kind == "folder" else annotated.stem
+        stem = named.removesuffix("_detected") or named
     base = path.parent if out_dir is None else Path(out_dir)
-    stem = path.name if kind == "folder" else path.stem
     suffix = {"video": ".mp4", "image": path.suffix}.get(kind, "")
     out = base / f"{stem}_detected{suffix}" if annotated is None else annotated
     tables = {fmt: out / "boxes.csv" if (fmt == "csv" and kind == "folder") else base / f"{stem}{FORMATS[fmt]}" for fmt in formats}
-    return Outputs(out if video else None, tables, base / f"{stem}_report.html" if report else None)
+    return Outputs(out if video else None, tables, base / f"{stem}_report.html" if report else None,
+                   base / f"{stem}{CAMERA_SUFFIX}" if camera else None)
 
 
 def check_input_outputs(kind: str, outputs: Outputs, images: Sequence[Path], *, overwrite: bool, inputs: Iterable[Path]) -> None:

@@ -54,7 +54,7 @@ from PIL import Image
 from ..detections import Detections
 from ..deprecation import old_keywords
 from ..detector import Detector
-from ..errors import InputError, OutputError
+from ..errors import InputError, OutputError, output_exists
 from ..geometry import box_area, box_intersection, box_iou, match_boxes, mirror_boxes, mirror_image
 from ..io import PARTIAL_SUFFIX, refuse_inputs, umask
 from ..io.images import list_images, read_image
@@ -607,7 +607,7 @@ def write_negatives(
     if dest.exists() and not dest.is_dir():
         raise OutputError(f"{dest}: exists and is not a folder")
     if dest.exists() and not overwrite:
-        raise OutputError(f"{dest}: output exists; pass --overwrite (overwrite=True) to replace it")
+        raise output_exists(dest)
     made = [p for p in (dest.parent, *dest.parent.parents) if not p.exists()]  # the folders made here, innermost first
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
