@@ -1,13 +1,17 @@
 """The ``vehicle-detection`` command: help, exit codes, one-line errors, outputs, JSON reports.
 
-Error paths run as real subprocesses (``python -m vehicle_detection.cli``), several at a time, so
-that the exit status and the exact stderr are what a shell sees. Successful runs go through
-``main([...])`` in this process, which is much faster (no interpreter and model start-up).
+Error paths run through ``main([...])`` in this process, stderr captured, one case after another:
+the exit code ``main`` returns (or argparse's ``SystemExit``) and the one line it prints. One case
+of each exit code, ``--debug`` and the installed console script also run as real subprocesses
+(``python -m vehicle_detection.cli``), so that the exit status and the exact stderr are what a
+shell sees, and both ways must agree. Successful runs go through ``main([...])`` too.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 import os
 import pickle
@@ -217,27 +221,49 @@ CASES = {
 }  # fmt: skip
 
 
+#: The cases that also run as real subprocesses: one of each exit code.
+SUBPROCESS_CASES = ("unknown-option", "missing-input", "tampered-model", "out-exists")
+
+
+def run_in_process(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """``main(argv)`` in this process, from ``cwd``: its exit code and what it printed."""
+    out, err = io.StringIO(), io.StringIO()
+    previous = Path.cwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # argparse's usage errors
+                code = exc.code
+    finally:
+        os.chdir(previous)
+    return subprocess.CompletedProcess(["main", *argv], code, out.getvalue(), err.getvalue())
+
+
 @pytest.fixture(scope="module")
 def error_runs(files):
-    """Run every case in a subprocess (4 at a time); record the outcome and the protected hashes."""
+    """Run every case through ``main`` (and a few as subprocesses too, 4 at a time); record the
+    outcome and the protected hashes."""
     d = files["dir"]
     runnable = {n: c for n, c in CASES.items() if not c[4] or (d / "street.jpg").exists()}
     before = {n: {p: sha256(d / p) for p in c[3]} for n, c in runnable.items()}
     listing = sorted(p.name for p in d.iterdir())
+    results = {n: run_in_process(c[0], d) for n, c in runnable.items()}
     with ThreadPoolExecutor(max_workers=4) as pool:
-        futures = {n: pool.submit(run_cli, *c[0], cwd=d) for n, c in runnable.items()}
+        futures = {f"subprocess:{n}": pool.submit(run_cli, *runnable[n][0], cwd=d) for n in SUBPROCESS_CASES if n in runnable}
         futures["--debug"] = pool.submit(run_cli, "detect", "nothere.png", "--debug", cwd=d)
         exe = shutil.which("vehicle-detection")
         if exe:
             futures["console-script"] = pool.submit(
                 subprocess.run, [exe, "detect", "nothere.png"], capture_output=True, text=True, cwd=d, timeout=300
             )
-        results = {n: f.result() for n, f in futures.items()}
+        results |= {n: f.result() for n, f in futures.items()}
     after = {n: {p: sha256(d / p) for p in c[3]} for n, c in runnable.items()}
     return results, before, after, listing, sorted(p.name for p in d.iterdir())
 
 
-@pytest.mark.xdist_group("cli-error-runs")  # one worker runs every case's subprocess, once
+@pytest.mark.xdist_group("cli-error-runs")  # one worker makes every case's run, once
 @pytest.mark.parametrize("name", list(CASES))
 def test_error_path(name, error_runs, files):
     results, before, after, _, _ = error_runs
@@ -254,11 +280,24 @@ def test_error_path(name, error_runs, files):
     assert before[name] == after[name]  # inputs and refused outputs are byte-identical
 
 
+@pytest.mark.xdist_group("cli-error-runs")
+@pytest.mark.parametrize("name", SUBPROCESS_CASES)
+def test_a_real_process_exits_as_main_returns(name, error_runs):
+    results = error_runs[0]
+    if name not in results:
+        pytest.skip("test_video.mp4 or test_images/ not in the checkout")
+    proc, in_process = results[f"subprocess:{name}"], results[name]
+    assert proc.stderr.splitlines() == in_process.stderr.splitlines() and len(proc.stderr.splitlines()) == 1, proc.stderr
+    assert proc.returncode == in_process.returncode == CASES[name][1]
+
+
+@pytest.mark.xdist_group("cli-error-runs")  # the same worker as the cases: the runs are made once
 def test_errors_leave_no_outputs(error_runs):
     *_, listing_before, listing_after = error_runs
     assert listing_after == listing_before  # nothing created: no output, no .partial, no EXECUTED
 
 
+@pytest.mark.xdist_group("cli-error-runs")
 def test_debug_shows_the_traceback_and_keeps_the_exit_code(error_runs):
     proc = error_runs[0]["--debug"]
     assert proc.stderr.startswith("Traceback (most recent call last):")
@@ -267,6 +306,7 @@ def test_debug_shows_the_traceback_and_keeps_the_exit_code(error_runs):
     assert proc.returncode == 3
 
 
+@pytest.mark.xdist_group("cli-error-runs")
 def test_installed_console_script(error_runs):
     if "console-script" not in error_runs[0]:
         pytest.skip("the vehicle-detection script is not on PATH")

@@ -131,6 +131,12 @@ def imports(module: str) -> list[tuple[str, str | None, bool, bool]]:
 EDGES = {m: imports(m) for m in MODULES}
 
 
+def test_the_package_imports_no_old_module_path():
+    """The old paths are for users' scripts, for one release; the package itself uses the new ones."""
+    stale = sorted({(m, target) for m, edges in EDGES.items() for target, *_ in edges if target in deprecation.MOVED_MODULES})
+    assert not stale, stale
+
+
 def test_the_layers_are_those_of_the_issue():
     assert {layer(m) for m in MODULES} == set(LAYERS)
     for core in ("features", "classifier", "search", "heatmap", "tracker", "config", "detector"):

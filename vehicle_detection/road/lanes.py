@@ -46,7 +46,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..overlays import active_area
+from ..footage.overlays import active_area
 from ..viz.drawing import draw_caption
 
 __all__ = [

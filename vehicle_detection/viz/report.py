@@ -44,7 +44,7 @@ from ..errors import InputError, require
 from ..io import atomic_output, check_output_path
 from ..io.tables import read_boxes_csv, read_lanes_csv
 from ..io.video import probe_video, read_frames
-from ..shots import ShotCuts, next_shot
+from ..footage.shots import ShotCuts, next_shot
 
 __all__ = ["RunSummary", "summarize", "render_html_report", "write_html_report", "track_spans", "matched_rows", "CROP_HEIGHT",
            "MAX_TRACKS"]
