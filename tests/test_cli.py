@@ -541,14 +541,21 @@ def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_p
 def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsys):
     from vehicle_detection.classifier import VehicleClassifier, load_default_model
 
-    labels = REPO / "dev_set" / "clip_A.json"  # 26 frames, 52 cars of the shipped clip
+    # The first 16 of clip A's 26 labelled frames (every 10th of its first 151): on the first 9,
+    # the refit's F1 at IoU 0.7 falls below the embedded model's (0.944 against 1.0).
+    clip = json.loads((REPO / "dev_set" / "clip_A.json").read_text())
+    clip["video"] = str((REPO / "dev_set" / clip["video"]).resolve())
+    clip["frames"] = {k: v for k, v in clip["frames"].items() if int(k) <= 150}
+    labels = tmp_path / "clip_A_start.json"
+    labels.write_text(json.dumps(clip))
+    n_cars = sum(len(f["cars"]) for f in clip["frames"].values())
     out = tmp_path / "refined.npz"
     assert main(["refine", "--labels", str(labels), "--out", str(out), "--json"]) == 0
     summary = last_json(capsys.readouterr().out)
     base, refined = load_default_model(), VehicleClassifier.load(out)
     # The penalty is the base model's (the embedded model's refinement was fitted with the default).
     assert base.metrics["box_refinement"]["alpha"] == REFINE_ALPHA
-    assert summary == {"n_frames": 26, "n_cars": 52, "alpha": REFINE_ALPHA, "mirror": False, "seconds": summary["seconds"], "model": str(out)}
+    assert summary == {"n_frames": 16, "n_cars": n_cars, "alpha": REFINE_ALPHA, "mirror": False, "seconds": summary["seconds"], "model": str(out)}
     # The classifier, the search and the tracker settings are the base model's; the refinement is new.
     assert np.array_equal(refined.weights, base.weights) and refined.bias == base.bias
     assert refined.detector_config == base.detector_config
