@@ -3,9 +3,25 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
-import numpy as np
+
+def _write_bytecode() -> None:
+    """Where the environment writes no bytecode (``PYTHONDONTWRITEBYTECODE``, as on the project's
+    machines), every process the tests start (the command line, the notebooks' kernels, the tools:
+    hundreds) would compile the package from source, and each xdist worker would rewrite the test
+    modules' asserts afresh. The test run writes the bytecode of the checkout's modules as Python
+    does by default (``__pycache__/`` beside them, ignored by git), and the processes it starts,
+    the workers included, inherit that. Installed packages keep the bytecode their install wrote."""
+    if sys.dont_write_bytecode:
+        os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+        sys.dont_write_bytecode = False
+
+
+_write_bytecode()
+
+import numpy as np  # noqa: E402  (after the bytecode's folder is set)
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
