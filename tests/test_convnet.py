@@ -159,7 +159,7 @@ def test_training_learns_a_separable_set():
     patches[labels == 1, 20:44, 12:52] = 20  # a dark block: the "vehicle"
     offsets = np.full((n, 4), np.nan, np.float32)
     offsets[labels == 1] = [0.1, 0.2, -0.1, -0.2]
-    net, record = fit_convnet(patches, labels, offsets, ConvNetTraining(channels=(8, 8, 8, 8), epochs=12, batch=32, learning_rate=5e-3))
+    net, record = fit_convnet(patches, labels, offsets, ConvNetTraining(channels=(8, 8, 8, 8), epochs=12, batch=32, learning_rate=5e-3, threads=1))  # one thread: the suite runs a worker a core
     out = net.score_patches(patches)
     assert ((out[:, 0] > 0) == (labels == 1)).mean() > 0.95
     np.testing.assert_allclose(out[labels == 1, 1:].mean(axis=0), [0.1, 0.2, -0.1, -0.2], atol=0.08)
