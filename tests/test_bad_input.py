@@ -394,7 +394,10 @@ def test_failed_write_leaves_neither_file_nor_partial(tmp_path):
     assert dest.read_text() == "done\n"
     with pytest.raises(OutputError) as info:
         check_output_path(dest)
-    assert_error(info, dest, "output exists; pass --overwrite")
+    assert_error(info, dest, "output exists; pass overwrite=True")  # the Python API's words
+    from vehicle_detection.errors import cli_message
+
+    assert "output exists; pass --overwrite" in cli_message(info.value)  # the command line's
 
 
 @pytest.mark.skipif(not hasattr(signal, "SIGINT") or os.name != "posix", reason="POSIX signals")
