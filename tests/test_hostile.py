@@ -1387,7 +1387,10 @@ def process_cluster():
     try:
         yield cluster
     finally:
-        cluster.close()
+        try:  # a test may have closed its scheduler: no 30-second wait for it to answer
+            cluster.close(timeout=5)
+        except Exception:  # noqa: BLE001 (the worker processes end with the cluster object anyway)
+            pass
 
 
 def _when_partial(folder: Path, action):
