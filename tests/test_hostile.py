@@ -1586,10 +1586,13 @@ def test_every_exit_code_is_in_the_readme_table():
     codes = {c.exit_code for c in classes} | {0, 1, SOME_FAILED, 130}
     assert 1 not in {c.exit_code for c in classes}  # 1 is for bugs only: no user error has it
     readme = (REPO / "README.md").read_text()
-    table = re.search(r"\*\*Exit codes\*\*:(.*?)\n\n", readme, re.S)[1].replace("\n", " ")
-    documented = _documented_codes(table)
+    section = readme.split("\n## Exit codes\n", 1)[1].split("\n## ", 1)[0]  # a table: | code | meaning |
+    documented = {int(m[1]): m[2] for m in re.finditer(r"^\|\s*(\d+)\s*\|\s*(.+?)\s*\|\s*$", section, re.M)}
     assert codes <= set(documented), f"not in the README's exit codes: {sorted(codes - set(documented))}"
     assert documented[1].startswith("internal error (a bug")
+    explained = re.search(r"\*\*Exit codes\*\*:(.*?)\n(?:- |\n)", (REPO / "docs" / "cli.md").read_text(), re.S)[1]
+    in_full = _documented_codes(explained.replace("\n", " "))
+    assert codes <= set(in_full), f"not in docs/cli.md's exit codes: {sorted(codes - set(in_full))}"
     helped = _documented_codes(EPILOG.removeprefix("Exit codes:"))
     assert codes <= set(helped), f"not in --help's exit codes: {sorted(codes - set(helped))}"
 

@@ -1,4 +1,5 @@
-"""The README's ```bash blocks, replayed in order in a fresh copy of the repository.
+"""The README's ```bash blocks, replayed in order in a fresh copy of the repository; its ```python
+blocks, run as pasted, in order, in one fresh Python process.
 
 A copy of the tracked files (``git ls-files``) stands in for a fresh clone, with the shared data
 reachable as ``../shared/data`` (as beside the checkout). Every command runs as written, in
@@ -9,6 +10,7 @@ test suite itself, servers, minutes of training); everything else runs, so a new
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -38,6 +40,33 @@ SKIPPED = [
 INSTALL = re.compile(r"^python -m pip install [^&]*&&\s*")
 #: Seconds a command may take (the slowest here, a batch with --jobs 2, takes well under a minute).
 TIMEOUT = 600
+
+
+#: Runs the ```python blocks given as a JSON list on standard input, in order, in one namespace, as
+#: pasted into one interpreter; on an exception, prints the traceback and the block's number, exits 1.
+PYTHON_RUNNER = """
+import json, sys, traceback
+namespace = {"__name__": "__main__"}
+for number, code in enumerate(json.load(sys.stdin), 1):
+    try:
+        exec(compile(code, f"<README python block {number}>", "exec"), namespace)
+    except BaseException:
+        traceback.print_exc()
+        sys.stderr.write(f"README python block {number} failed\\n")
+        sys.exit(1)
+print(f"{number} blocks ran")
+"""
+
+
+def python_blocks(text: str) -> list[str]:
+    """The code of each ```python block, in order, as written."""
+    return re.findall(r"^```python\n(.*?)^```", text, flags=re.S | re.M)
+
+
+def run_python_blocks(blocks: list[str], cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    """The blocks, run as pasted into one fresh interpreter started in ``cwd``."""
+    return subprocess.run([sys.executable, "-c", PYTHON_RUNNER], input=json.dumps(blocks), cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=TIMEOUT)
 
 
 def bash_blocks(text: str) -> list[list[str]]:
@@ -104,4 +133,39 @@ def test_every_readme_bash_block_runs_as_written_in_order(clone, tmp_path):
     assert (clone / "test_video_detected.mp4").is_file() and (clone / "test_video_boxes.csv").is_file()
     assert (clone / "camera.json").is_file() and (clone / "test_video_lanes.csv").is_file()
     assert {"test_video_boxes.csv", "test_images_detected"} <= {p.name for p in (clone / "out").iterdir()}
+    assert (clone / "out" / "test1_boxes.csv").is_file() and (clone / "test_video_report.html").is_file()
     assert len(ran) >= 5, (ran, skipped)
+
+
+def test_the_readme_python_blocks_are_found():
+    blocks = python_blocks((REPO / "README.md").read_text())
+    assert len(blocks) >= 3, blocks
+    assert blocks[0].lstrip().startswith("import vehicle_detection as vd")
+    text = "".join(blocks)
+    for name in ("vd.Detector(", "detect_image(", ".track(", "vd.process_video(", "vd.evaluation_report("):
+        assert name in text, name
+
+
+def test_every_readme_python_block_runs_as_pasted_in_order(clone):
+    env = {**os.environ, "PYTHONPATH": str(clone)}  # the copy's package, as an install of the clone would give
+    env.pop("VEHICLE_DETECTION_DATA", None)
+    blocks = python_blocks((clone / "README.md").read_text())
+    proc = run_python_blocks(blocks, clone, env)
+    assert proc.returncode == 0, f"a README python block failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+    assert proc.stdout.splitlines()[-1] == f"{len(blocks)} blocks ran"
+    assert (clone / "test1_boxes.jpg").is_file() and (clone / "test_video_python.csv").is_file()
+
+
+def test_a_python_block_with_a_bad_name_fails(tmp_path):
+    """The check can fail: a name that does not exist, or a method called on the class, stops the
+    run at its block, which is named; names carry over between blocks, as when pasted."""
+    ok = ["import vehicle_detection as vd\nfound = 1", "assert found == 1\nprint(vd.Detector)"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = run_python_blocks(ok, tmp_path, env)
+    assert proc.returncode == 0 and proc.stdout.splitlines()[-1] == "2 blocks ran", proc.stderr
+    for bad, error in [("vd.no_such_name", "AttributeError"), ('vd.Road.for_footage("test_video.mp4")', "TypeError"),
+                       ("print(undefined)", "NameError")]:
+        proc = run_python_blocks([*ok, bad, "print('never')"], tmp_path, env)
+        assert proc.returncode == 1, (bad, proc.stdout, proc.stderr)
+        assert "README python block 3 failed" in proc.stderr and error in proc.stderr, (bad, proc.stderr)
+        assert "never" not in proc.stdout
