@@ -1,4 +1,4 @@
-"""Every script of ``tools/`` that README.md or writeup.md cites runs: with ``--help``, and on the
+"""Every script of ``tools/`` that README.md, writeup.md or docs/ cites runs: with ``--help``, and on the
 smallest real input that finishes in seconds (its own options, a few frames, a few images).
 
 A script whose input is not on this machine (the mined negatives, a browser) is skipped with the
@@ -24,8 +24,9 @@ NEGATIVES = REPO / "data" / "negatives" / "non-vehicles"
 
 
 def cited() -> list[str]:
-    """The tools the README and the writeup name, ``tools/NAME.py``."""
-    text = "".join((REPO / doc).read_text() for doc in ("README.md", "writeup.md") if (REPO / doc).is_file())
+    """The tools the README, the writeup and the documents of ``docs/`` name, ``tools/NAME.py``."""
+    docs = [REPO / "README.md", REPO / "writeup.md", *sorted((REPO / "docs").glob("*.md"))]
+    text = "".join(doc.read_text() for doc in docs if doc.is_file())
     return sorted(set(re.findall(r"tools/(\w+)\.py", text)))
 
 
