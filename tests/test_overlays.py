@@ -277,10 +277,10 @@ def test_no_track_lives_on_the_windscreen_mount():
     from vehicle_detection.detections import Detections
     from vehicle_detection.detector import Detector
 
-    frames = frames_of(HIGHWAY, 0, 200)
+    frames = frames_of(HIGHWAY, 0, 60)  # 107 boxes with the mask, 60 on the mount without it (2026-11-29)
     # Heat goes to the windows themselves (the mount detector has no box refinement): the mask is
     # what is tested.
-    detector = mount_detector(frames[::10])
+    detector = mount_detector(frames[::3])
     tracker = detector.new_tracker()
     found = Detections.concatenate(detector.track(frames, tracker))
     integral = mask_integral(tracker.state.overlays.mask)
