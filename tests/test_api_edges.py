@@ -174,3 +174,28 @@ def test_frames_the_library_cannot_use_are_refused_naming_shape_and_dtype(detect
         with pytest.raises(ValueError) as info:  # an InputError: the CLI's exit code 3
             call()
         assert isinstance(info.value, InputError) and expected in str(info.value), (name, str(info.value))
+
+
+def test_the_footage_and_lane_functions_take_grey_frames_and_refuse_the_rest():
+    """``fit_sides``, ``vanishing_row`` and ``lane_binary`` convert a grey frame once at their
+    edge, as the detector does (they raised NumPy's or OpenCV's errors), and refuse what they
+    cannot use in one line naming the shape and dtype."""
+    import vehicle_detection as vd
+
+    rgb = read_image(Path(__file__).resolve().parents[1] / "test_images" / "test1.jpg")
+    grey = rgb[..., 1].copy()
+    stacked = np.repeat(grey[..., None], 3, axis=2)
+    boxes = np.array([[800, 400, 950, 500], [1050, 400, 1250, 510]])
+    fit = vd.SideFit()
+    calls = {
+        "fit_sides": lambda frame: vd.fit_sides(frame, boxes, fit),
+        "vanishing_row": vd.vanishing_row,
+        "lane_binary": vd.lane_binary,
+    }
+    for name, call in calls.items():
+        want = call(stacked)
+        for same in (grey, grey[..., None]):
+            got = call(same)
+            assert np.array_equal(np.asarray(got, dtype=float), np.asarray(want, dtype=float), equal_nan=True), name
+        with pytest.raises(InputError, match=r"expected an RGB uint8 image of shape \(H, W, 3\), got float64 of shape \(720, 1280\)"):
+            call(grey / 255.0)

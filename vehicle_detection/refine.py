@@ -37,6 +37,7 @@ from ._jit import njit
 from ._settings import JsonSettings, number_in
 from .features import FeatureConfig, extract_features
 from .geometry import as_boxes, box_iou, mirror_boxes
+from .io.images import as_rgb_uint8
 
 __all__ = [
     "BoxRegressor", "SideFit", "fit_sides", "edge_offsets", "apply_offsets", "jittered_windows", "hot_window_targets", "beyond_jitter",
@@ -459,6 +460,7 @@ def fit_sides(image: np.ndarray, boxes: np.ndarray, fit: SideFit, *, area: tuple
         8 pixels wide or high) is returned as it is.
     """
     out = np.rint(as_boxes(boxes, "boxes")).astype(np.int64)
+    image = as_rgb_uint8(image)  # grey converted, anything else refused in one line
     h, w = image.shape[:2]
     a0, a1 = (0, w) if area is None else (max(0, int(area[0])), min(w, int(area[2])))
     for box in out:

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from .._settings import JsonSettings, number_in
+from ..io.images import as_rgb_uint8
 
 __all__ = ["vanishing_row", "estimate_horizon", "TOLERANCE", "CarHorizon", "implied_horizon", "horizon_from_cars"]
 
@@ -56,6 +57,7 @@ def vanishing_row(frame: np.ndarray) -> float | None:
         part of the frame towards a common point (no lane lines or road edges), or when the
         crossings scatter (less than half their weight within 1.5 % of the height of the median).
     """
+    frame = as_rgb_uint8(frame, name="frame")  # grey converted, anything else refused in one line
     h, w = frame.shape[:2]
     if h < 16 or w < 16:
         return None

@@ -47,6 +47,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..footage.overlays import active_area
+from ..io.images import as_rgb_uint8
 from ..viz.drawing import draw_caption
 
 __all__ = [
@@ -255,7 +256,7 @@ def lane_binary(rgb: np.ndarray, *, s_thresh=(170, 255), sx_thresh=(20, 100), wh
     HLS saturation in ``s_thresh`` (yellow and white paint), or lightness > ``white`` in all
     three RGB channels, or the scaled Sobel x of the lightness in ``sx_thresh``.
     """
-    rgb = np.ascontiguousarray(rgb)
+    rgb = np.ascontiguousarray(as_rgb_uint8(rgb))  # grey converted, anything else refused in one line
     hls = cv2.cvtColor(rgb, cv2.COLOR_RGB2HLS)
     lum = np.ascontiguousarray(hls[..., 1])
     dx = cv2.Sobel(lum, cv2.CV_16S, 1, 0, ksize=3)
