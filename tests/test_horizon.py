@@ -364,8 +364,7 @@ def test_a_second_look_reads_frames_as_decoded_not_as_drawn_on(monkeypatch):
     assert sum(map(len, clean)) > 0 and all(a == b for a, b in zip(clean, drawn, strict=True))
 
 
-@pytest.mark.parametrize("chunk", [10, 20])
-def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path, chunk):
+def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path):
     from vehicle_detection.io.video import VideoWriter
     from vehicle_detection.pipeline import process_video
     from vehicle_detection.pipeline.batch import detect_chunked
@@ -379,7 +378,8 @@ def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path, chunk):
     tracker = detector.new_tracker()
     whole = process_video(video, None, detector=detector, progress=False, tracker=tracker)
     assert tracker.state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
-    assert detect_chunked(video, chunk, detector=detector) == whole
+    for chunk in (10, 20):  # one video and one whole run for both chunk sizes
+        assert detect_chunked(video, chunk, detector=detector) == whole, chunk
 
 
 @pytest.mark.parametrize("name", ["test1.jpg", "test4.jpg", "test6.jpg"])
