@@ -684,7 +684,7 @@ def draw_lane(
     area : sequence of 4 int, optional
         ``(x1, y1, x2, y2)`` of the picture inside black bars: the lane and the caption are drawn
         inside it only. Default: the picture of ``image`` itself
-        (:func:`~vehicle_detection.overlays.active_area`).
+        (:func:`~vehicle_detection.footage.overlays.active_area`).
 
     Returns
     -------

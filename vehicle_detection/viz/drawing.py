@@ -259,7 +259,7 @@ def draw_caption(
         The caption, one entry a line.
     area : sequence of 4 int, optional
         ``(x1, y1, x2, y2)`` of the picture inside black bars
-        (:func:`~vehicle_detection.overlays.active_area`); the caption lies inside it. Default:
+        (:func:`~vehicle_detection.footage.overlays.active_area`); the caption lies inside it. Default:
         the whole image.
     scale : float, optional
         Font scale (OpenCV's Hershey simplex). Default: the picture's height over 720, between

@@ -12,7 +12,7 @@ table when there are ones, into one HTML file that any browser opens from disk:
   labelled with its track id;
 * with a lanes table, the radius of curvature and the lane-centre offset over time.
 
-Cuts between shots (:mod:`~vehicle_detection.shots`: the run's own, else found in the video) are
+Cuts between shots (:mod:`~vehicle_detection.footage.shots`: the run's own, else found in the video) are
 dashed vertical lines on every chart over frames.
 
 Figures are drawn with matplotlib (``pip install "vehicle-detection[report]"``) and embedded as
@@ -479,7 +479,7 @@ def _crop(frame: np.ndarray, box: Sequence[int]) -> np.ndarray:
 
 def _cut_crops(video: Path, detections: Detections, rows: Iterable[int], *, cuts_before: int = 0) -> tuple[dict[int, np.ndarray], list[int]]:
     """Crop of each row's box from ``video``, decoding up to the last frame needed; and the cuts
-    between shots (:func:`~vehicle_detection.shots.next_shot`, default rule) in the first
+    between shots (:func:`~vehicle_detection.footage.shots.next_shot`, default rule) in the first
     ``cuts_before`` frames, decoding those too."""
 
     wanted: dict[int, list[int]] = {}
@@ -778,8 +778,8 @@ def write_html_report(
     cuts : iterable of int, optional
         The frames at which the run's footage cut to another shot
         (:attr:`TrackerState.cuts <vehicle_detection.tracker.TrackerState.cuts>`), marked on
-        the charts. Default: found in ``video`` (:func:`~vehicle_detection.shots.next_shot`
-        with the default :class:`~vehicle_detection.shots.ShotCuts`, decoding every frame of
+        the charts. Default: found in ``video`` (:func:`~vehicle_detection.footage.shots.next_shot`
+        with the default :class:`~vehicle_detection.footage.shots.ShotCuts`, decoding every frame of
         the run), else none marked.
     overwrite : bool
         Replace an existing file at ``path``.
