@@ -30,6 +30,7 @@ an edge to the module the package's stub says ``name`` comes from.
 from __future__ import annotations
 
 import ast
+import functools
 import graphlib
 import importlib
 import sys
@@ -73,6 +74,7 @@ def _is_package(module: str) -> bool:
     return MODULES.get(module, Path()).name == "__init__.py"
 
 
+@functools.cache
 def _stub_names(package: str) -> dict[str, str]:
     """name -> absolute module, from the package's ``__init__.pyi`` (empty without one)."""
     path = MODULES[package].with_suffix(".pyi")
@@ -95,23 +97,32 @@ def _absolute(module: str, node: ast.ImportFrom) -> str:
     return ".".join(parts + ([node.module] if node.module else []))
 
 
-def _type_checking_nodes(tree: ast.AST) -> set[ast.AST]:
-    inside = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            for child in node.body:
-                inside.update(ast.walk(child))
-    return inside
+_BLOCKS = ("body", "orelse", "finalbody", "handlers", "cases")  # the fields that hold statements
+
+
+def _import_statements(tree: ast.Module) -> list[tuple[ast.Import | ast.ImportFrom, bool]]:
+    """Every import statement, at module level or nested in any block, with whether it runs
+    (``False`` inside an ``if TYPE_CHECKING:`` body). Only statements are visited: imports are
+    never inside expressions, and walking every expression node costs seconds over the package."""
+    out, todo = [], [(stmt, True) for stmt in tree.body]
+    while todo:
+        node, runtime = todo.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            out.append((node, runtime))
+            continue
+        typing_body = isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+        for field in _BLOCKS:
+            for child in getattr(node, field, ()):
+                todo.append((child, runtime and not (typing_body and field == "body")))
+    return out
 
 
 def imports(module: str) -> list[tuple[str, str | None, bool, bool]]:
     """``(target module, name taken or None, at run time, through a package's stub)`` of every
     import of the package in ``module``."""
     tree = ast.parse(MODULES[module].read_text())
-    typing_only = _type_checking_nodes(tree)
     out = []
-    for node in ast.walk(tree):
-        runtime = node not in typing_only
+    for node, runtime in _import_statements(tree):
         if isinstance(node, ast.Import):
             out += [(a.name, None, runtime, False) for a in node.names if a.name.split(".")[0] == NAME]
         elif isinstance(node, ast.ImportFrom):
@@ -128,12 +139,15 @@ def imports(module: str) -> list[tuple[str, str | None, bool, bool]]:
     return out
 
 
-EDGES = {m: imports(m) for m in MODULES}
+@functools.cache
+def edges() -> dict[str, list[tuple[str, str | None, bool, bool]]]:
+    """The imports of every module (parsed once, by the first test that asks: not at collection)."""
+    return {m: imports(m) for m in MODULES}
 
 
 def test_the_package_imports_no_old_module_path():
     """The old paths are for users' scripts, for one release; the package itself uses the new ones."""
-    stale = sorted({(m, target) for m, edges in EDGES.items() for target, *_ in edges if target in deprecation.MOVED_MODULES})
+    stale = sorted({(m, target) for m, edges in edges().items() for target, *_ in edges if target in deprecation.MOVED_MODULES})
     assert not stale, stale
 
 
@@ -166,7 +180,7 @@ def test_no_import_cycle(typing_too):
     """Not even through ``if TYPE_CHECKING:`` imports: a type the search takes from the classifier,
     whose config takes the search's plan, is a circle for every reader (the search names what it
     reads of a model in a protocol, ``search.WindowScorer``)."""
-    graph = {m: {t for t, _, runtime, _ in EDGES[m] if (runtime or typing_too) and t != m and t in MODULES} for m in MODULES}
+    graph = {m: {t for t, _, runtime, _ in edges()[m] if (runtime or typing_too) and t != m and t in MODULES} for m in MODULES}
     cycle = _cycle(graph)
     assert cycle is None, f"import cycle: {' -> '.join(cycle)}"
     assert _cycle({**graph, f"{NAME}.search": graph[f"{NAME}.search"] | {f"{NAME}.classifier"}})  # the old circle is seen
@@ -176,7 +190,7 @@ def test_no_import_from_a_higher_layer():
     upward = [
         f"{m} ({layer(m)}) imports {t} ({layer(t)})"
         for m in MODULES
-        for t, _, _, _ in EDGES[m]
+        for t, _, _, _ in edges()[m]
         if t in MODULES and LAYERS[layer(t)] > LAYERS[layer(m)]
     ]
     assert not upward, "\n".join(upward)
@@ -194,7 +208,7 @@ def _inside(module: str, folder: str) -> bool:
 def test_private_names_stay_in_their_package():
     leaks = []
     for m in MODULES:
-        for target, name, _, via_stub in EDGES[m]:
+        for target, name, _, via_stub in edges()[m]:
             if via_stub:
                 continue  # a name the package hands on in its stub: public, wherever it is defined
             leaf = target.rpartition(".")[2]
@@ -207,12 +221,12 @@ def test_private_names_stay_in_their_package():
 
 def test_the_rules_can_fail():
     """The readers above see what they must: an edge inside a function, through a stub, upward."""
-    assert (f"{NAME}.io._files", "atomic_output", True, True) in EDGES[f"{NAME}.classifier"]  # through io's stub
+    assert (f"{NAME}.io._files", "atomic_output", True, True) in edges()[f"{NAME}.classifier"]  # through io's stub
     assert layer(f"{NAME}.pipeline.inputs") == "pipeline" and layer(f"{NAME}.io._files") == "io"
-    cli = {t for t, _, _, _ in EDGES[f"{NAME}.cli.detect"]}
+    cli = {t for t, _, _, _ in edges()[f"{NAME}.cli.detect"]}
     assert f"{NAME}.pipeline.batch" in cli and LAYERS[layer(f"{NAME}.cli.detect")] > LAYERS["pipeline"]
     assert _inside(f"{NAME}.footage.shots", NAME) and not _inside(NAME + ".classifier", f"{NAME}.io")  # private: downward only
-    assert (f"{NAME}._settings", "JsonSettings", True, False) in EDGES[f"{NAME}.footage.shots"]
+    assert (f"{NAME}._settings", "JsonSettings", True, False) in edges()[f"{NAME}.footage.shots"]
     assert layer(f"{NAME}.footage.shots") == "footage" and LAYERS["footage"] < LAYERS["core"]
     tree = ast.parse("def f():\n    from ..viz import drawing\n")
     node = tree.body[0].body[0]
