@@ -8,6 +8,7 @@ for 8 frames as for 38, at a fifth of the cost.
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 from pathlib import Path
@@ -18,7 +19,11 @@ import pytest
 
 from vehicle_detection.cli import main
 from vehicle_detection.cli.detect import SOME_FAILED
-from vehicle_detection.io.tables import BOXES_CSV_HEADER, FILES_CSV_HEADER, read_boxes_csv
+from vehicle_detection.io.tables import (
+    BOXES_CSV_HEADER,
+    FILES_CSV_HEADER,
+    read_boxes_csv,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
@@ -66,9 +71,11 @@ def single_csv(tmp_path_factory, clip) -> bytes:
 @pytest.fixture(scope="module")
 def cluster():
     distributed = pytest.importorskip("distributed", reason="dask.distributed not installed (pip install -e '.[distributed]')")
-    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as c:
-        with distributed.Client(c) as client:
-            yield c, client
+    with (
+        distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as c,
+        distributed.Client(c) as client,
+    ):
+        yield c, client
 
 
 def test_jobs_2_gives_the_single_run_csv_and_skip_existing_rewrites_nothing(videos, single_csv, tmp_path, capsys):
@@ -234,7 +241,11 @@ def test_scheduler_gives_identical_csvs(cluster, videos, single_csv, tmp_path):
 
 def test_chunks_continue_the_tracker_and_its_back_fill(cluster, clip):
     import vehicle_detection as vd
-    from vehicle_detection.pipeline.batch import detect_chunked, join_chunks, track_chunk
+    from vehicle_detection.pipeline.batch import (
+        detect_chunked,
+        join_chunks,
+        track_chunk,
+    )
 
     _, client = cluster
     n = CLIP_FRAMES
@@ -252,7 +263,7 @@ def test_chunks_continue_the_tracker_and_its_back_fill(cluster, clip):
     bounds = sorted({0, border, *range(border + 4, n, 4)}) + [n]
     assert len(bounds) >= 4  # at least three chunks: a state passed on twice
     steps, state = [], None
-    for a, b in zip(bounds, bounds[1:]):
+    for a, b in itertools.pairwise(bounds):
         part, state = track_chunk(clip, a, b, state)
         steps += part
     assert state.frame_index == n
