@@ -226,6 +226,7 @@ def test_supervision_round_trip():
 # --- dask -----------------------------------------------------------------------------------------
 
 
+@pytest.mark.xdist_group("batch-dask")  # the dask tests on one worker: one LocalCluster
 def test_scheduler_gives_identical_csvs(cluster, videos, single_csv, tmp_path):
     c, _ = cluster
     out = tmp_path / "out"
@@ -239,6 +240,7 @@ def test_scheduler_gives_identical_csvs(cluster, videos, single_csv, tmp_path):
     assert (out2 / "a_boxes.csv").read_bytes() == single_csv
 
 
+@pytest.mark.xdist_group("batch-dask")
 def test_chunks_continue_the_tracker_and_its_back_fill(cluster, clip):
     import vehicle_detection as vd
     from vehicle_detection.pipeline.batch import (
@@ -276,6 +278,7 @@ def test_chunks_continue_the_tracker_and_its_back_fill(cluster, clip):
         track_chunk(clip, 3, 5, state)
 
 
+@pytest.mark.xdist_group("batch-dask")
 def test_detect_many_with_a_client(cluster, videos, single_csv, tmp_path):
     import vehicle_detection as vd
 
