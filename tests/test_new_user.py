@@ -9,6 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import media
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -18,6 +19,17 @@ TEST_IMAGES = REPO / "test_images"
 pytestmark = pytest.mark.skipif(
     not (TEST_VIDEO.is_file() and (TEST_IMAGES / "test1.jpg").is_file()), reason="test_video.mp4 or test_images/ not in the checkout"
 )
+
+
+#: Frames of the clip the video runs use (cut from test_video.mp4): two cars in each.
+CLIP_FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory) -> Path:
+    """The first CLIP_FRAMES frames of test_video.mp4 (packets copied, no re-encoding): what the
+    runs below check is the same for 8 frames as for 38, at a fifth of the cost."""
+    return media.copy_packets(TEST_VIDEO, tmp_path_factory.mktemp("clip") / "clip.mp4", max_frames=CLIP_FRAMES)
 
 
 def _env() -> dict:
@@ -39,7 +51,7 @@ def test_detect_many_with_jobs_in_a_plain_script_without_a_main_guard(tmp_path):
         for r in results:
             print(r.path, r.n_boxes, r.error)
     """))
-    proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert lines.count("script started") == 1  # the workers did not run the script again
@@ -49,13 +61,13 @@ def test_detect_many_with_jobs_in_a_plain_script_without_a_main_guard(tmp_path):
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["test1_boxes.csv", "test3_boxes.csv"]
 
 
-def test_out_puts_every_output_of_the_run_beside_it(tmp_path, capsys):
+def test_out_puts_every_output_of_the_run_beside_it(clip, tmp_path, capsys):
     from vehicle_detection.cli import main
     from vehicle_detection.io.tables import read_boxes_csv
 
     video = tmp_path / "in" / "clip.mp4"
     video.parent.mkdir()
-    shutil.copy(TEST_VIDEO, video)
+    shutil.copy(clip, video)
     out = tmp_path / "o" / "t.mp4"
     assert main(["detect", str(video), "--out", str(out), "--format", "csv,mot", "--no-progress"]) == 0
     assert sorted(p.name for p in video.parent.iterdir()) == ["clip.mp4"]  # nothing beside the input
@@ -73,14 +85,14 @@ def test_out_puts_every_output_of_the_run_beside_it(tmp_path, capsys):
     assert sorted(p.name for p in drawn.iterdir()) == ["boxes.csv", "test1.jpg", "test2.jpg"]
 
 
-def test_the_runner_counts_every_frame_and_image_not_only_those_with_boxes(tmp_path):
+def test_the_runner_counts_every_frame_and_image_not_only_those_with_boxes(clip, tmp_path):
     import vehicle_detection as vd
     from vehicle_detection.pipeline.inputs import InputOptions, run_input
 
-    frames = sum(1 for _ in vd.read_frames(TEST_VIDEO))
-    r = run_input(TEST_VIDEO, InputOptions(video=False), out_dir=tmp_path / "v")
+    frames = sum(1 for _ in vd.read_frames(clip))
+    r = run_input(clip, InputOptions(video=False), out_dir=tmp_path / "v")
     table = vd.read_boxes_csv(r.outputs[0])
-    assert r.n_frames == frames == 38 and r.n_boxes == len(table)
+    assert r.n_frames == frames == CLIP_FRAMES and r.n_boxes == len(table) > 0
     shots = tmp_path / "shots"
     shots.mkdir()
     for name in ("test1.jpg", "test2.jpg", "test3.jpg"):  # test2: an empty road
@@ -133,7 +145,7 @@ def test_horizon_auto_on_a_still_image_estimates_it_from_the_image(tmp_path, cap
     assert "horizon:" not in capsys.readouterr().out
 
 
-def test_coco_in_a_mixed_batch_is_written_for_the_images_and_a_glob_of_images_is_one_dataset(tmp_path, capsys):
+def test_coco_in_a_mixed_batch_is_written_for_the_images_and_a_glob_of_images_is_one_dataset(clip, tmp_path, capsys):
     import json
 
     import vehicle_detection as vd
@@ -141,7 +153,7 @@ def test_coco_in_a_mixed_batch_is_written_for_the_images_and_a_glob_of_images_is
 
     mixed = tmp_path / "mixed"
     mixed.mkdir()
-    shutil.copy(TEST_VIDEO, mixed / "clip.mp4")
+    shutil.copy(clip, mixed / "clip.mp4")
     for name in ("test1.jpg", "test3.jpg"):
         shutil.copy(TEST_IMAGES / name, mixed / name)
     out = tmp_path / "out"
