@@ -269,7 +269,6 @@ def test_birds_eye_from_the_straight_frames(real_camera):
 @needs_data
 def test_detect_with_lanes_on_the_test_video(real_camera, tmp_path):
     from vehicle_detection.cli import main
-
     from vehicle_detection.io.video import VideoWriter, probe_video, read_frames
 
     cam, _ = real_camera
