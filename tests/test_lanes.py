@@ -248,7 +248,9 @@ def real_camera():
     from vehicle_detection.road.camera import calibrate
     from vehicle_detection.io.images import read_image
 
-    cam = calibrate(DATA / "camera_cal")
+    # Half the chessboard photos (the odd-numbered ten) calibrate in half the time, with the
+    # distortion of all twenty (k1 -0.25 against -0.24); tests/test_camera.py calibrates on all.
+    cam = calibrate([DATA / "camera_cal" / f"calibration{i}.jpg" for i in range(1, 20, 2)])
     frames = [read_image(DATA / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)]
     return cam.replace(birds_eye=birds_eye_from_straight(frames, cam)), frames
 
@@ -267,17 +269,24 @@ def test_birds_eye_from_the_straight_frames(real_camera):
 @needs_data
 def test_detect_with_lanes_on_the_test_video(real_camera, tmp_path):
     from vehicle_detection.cli import main
+    from vehicle_detection.io.video import VideoWriter, probe_video, read_frames
 
     cam, _ = real_camera
     cam_path = cam.save(tmp_path / "camera.json")
+    clip = tmp_path / "clip.mp4"  # the test video's first 12 frames: lanes and cars in each
+    with VideoWriter(clip, probe_video(REPO / "test_video.mp4").fps, (1280, 720), crf=18) as writer:
+        for i, frame in enumerate(read_frames(REPO / "test_video.mp4")):
+            if i == 12:
+                break
+            writer.write(frame)
     lanes_csv, boxes = tmp_path / "L.csv", tmp_path / "B.csv"
     code = main([
-        "detect", str(REPO / "test_video.mp4"), "--camera", str(cam_path), "--lanes-csv", str(lanes_csv),
+        "detect", str(clip), "--camera", str(cam_path), "--lanes-csv", str(lanes_csv),
         "--boxes", str(boxes), "--out", str(tmp_path / "o.mp4"), "--no-progress",
     ])
     assert code == 0
     rows = list(csv.DictReader(lanes_csv.open()))
-    assert len(rows) == 38
+    assert len(rows) == 12
     radius = np.array([float(r["curvature_m"]) if r["curvature_m"] else np.nan for r in rows])
     offset = np.array([float(r["offset_m"]) if r["offset_m"] else np.nan for r in rows])
     assert np.mean((radius > 200) & (radius < 10_000)) > 0.8
