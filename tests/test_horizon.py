@@ -317,9 +317,19 @@ def test_cli_says_where_the_horizon_came_from(tmp_path, capsys, monkeypatch, til
     assert len(line) == 1 and "estimated from the cars found in the video" in line[0]
 
 
+def _quick_looks(frames: int) -> Detector:
+    """The embedded detector without shot cuts, its cars read off ``frames`` of the 12 frames of
+    each look at the horizon (4 by default): the tests of when the shot is looked at again need
+    no more (the cars' horizon itself is tested on the default's 4 above)."""
+    import dataclasses
+
+    config = Detector().config
+    return Detector(config=config.replace(shot_cuts=None, car_horizon=dataclasses.replace(config.car_horizon, frames=frames)))
+
+
 def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeypatch):
     _without_lines(monkeypatch)
-    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    detector = _quick_looks(1)  # no car on a grey picture: one frame a look will do
     grey = np.full((720, 1280, 3), 90, np.uint8)
     tracker = detector.new_tracker()
     list(detector.track([grey] * 50, tracker))
@@ -351,7 +361,7 @@ def road_then_cars_run():
     with pytest.MonkeyPatch.context() as mp:
         _without_lines(mp)
         video = _road_then_cars()
-        detector = Detector(config=Detector().config.replace(shot_cuts=None))
+        detector = _quick_looks(2)
         tracker = detector.new_tracker()
         found = [f for _, f in detector.track_frames([f.copy() for f in video], tracker)]
     return video, detector, found, tracker.state
@@ -395,7 +405,7 @@ def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path):
     with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
         for frame in _road_then_cars():
             writer.write(frame)
-    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    detector = _quick_looks(2)
     tracker = detector.new_tracker()
     whole = process_video(video, None, detector=detector, progress=False, tracker=tracker)
     assert tracker.state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
