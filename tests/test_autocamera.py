@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO, shared_data_dir
+from vehicle_detection.errors import OutputError
 from vehicle_detection.road.autocamera import (
     camera_from_estimate,
     estimate_birds_eye,
@@ -21,7 +22,6 @@ from vehicle_detection.road.autocamera import (
     save_estimate,
 )
 from vehicle_detection.road.camera import Camera
-from vehicle_detection.errors import OutputError
 
 # The synthetic camera: a pinhole 1.3 m above a flat road, pitched 2 degrees down, no roll.
 W, H = 960, 540
@@ -237,8 +237,8 @@ def test_test_video(test_video_estimate):
 
 @pytest.mark.skipif(not (shared_data_dir() / "camera_cal").is_dir(), reason=f"no chessboard photos in {shared_data_dir()}")
 def test_test_video_distances_against_the_calibrated_camera(test_video_estimate):
-    from vehicle_detection.road.camera import calibrate
     from vehicle_detection.io.images import read_image
+    from vehicle_detection.road.camera import calibrate
     from vehicle_detection.road.lanes import birds_eye_from_straight
 
     cam = calibrate(shared_data_dir() / "camera_cal")

@@ -6,15 +6,20 @@ import itertools
 
 import numpy as np
 import pytest
-from conftest import REPO
 
-from vehicle_detection.footage.exposure import Exposure, brighten, exposure_gain, picture_level
+from conftest import REPO
+from vehicle_detection.footage.exposure import (
+    Exposure,
+    brighten,
+    exposure_gain,
+    picture_level,
+)
 
 
 def test_settings_are_checked_and_round_trip():
     rule = Exposure(dark=50, target=100, max_gain=3)
     assert Exposure.from_dict(rule.to_dict()) == rule and isinstance(rule.dark, float)
-    for bad in (dict(dark=0), dict(dark=-1), dict(target=30.0), dict(max_gain=0.5), dict(max_gain=float("inf")), dict(dark=True)):
+    for bad in ({"dark": 0}, {"dark": -1}, {"target": 30.0}, {"max_gain": 0.5}, {"max_gain": float("inf")}, {"dark": True}):
         with pytest.raises(ValueError, match="Exposure"):
             Exposure(**bad)
     with pytest.raises(ValueError, match="keys"):
@@ -113,7 +118,7 @@ def test_dark_images_are_searched_brightened(test_frames):
     labels = json.loads((REPO / "dev_set" / "test_images.json").read_text())["frames"].values()
     cars = {f["file"]: np.array(f["cars"], float).reshape(-1, 4) for f in labels}
     files = sorted((REPO / "test_images").glob("test*.jpg"))
-    found, missed, false = {"on": 0, "off": 0}, {"on": 0, "off": 0}, {"on": 0, "off": 0}
+    found, false = {"on": 0, "off": 0}, {"on": 0, "off": 0}
     for path, frame in zip(files, test_frames):
         dark = np.rint(frame * 0.3).astype(np.uint8)
         gain = exposure_gain(picture_level(dark), det.config.exposure)
@@ -136,7 +141,7 @@ def test_cli_says_when_it_brightened_the_footage(tmp_path, capsys, clip):
 
     for light in (1.0, 0.3):
         video = tmp_path / f"light_{light}.mp4"
-        with VideoWriter(video, 25, (1280, 720)) as writer:
+        with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
             for frame in clip[:12]:
                 writer.write(np.rint(frame * light).astype(np.uint8))
         assert main(["detect", str(video), "--no-progress", "--no-video", "--boxes", str(tmp_path / "b.csv"), "--overwrite"]) == 0

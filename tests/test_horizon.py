@@ -9,7 +9,14 @@ import pytest
 from conftest import REPO
 from vehicle_detection.config import DetectorConfig
 from vehicle_detection.detector import Detector
-from vehicle_detection.footage.horizon import TOLERANCE, CarHorizon, estimate_horizon, horizon_from_cars, implied_horizon, vanishing_row
+from vehicle_detection.footage.horizon import (
+    TOLERANCE,
+    CarHorizon,
+    estimate_horizon,
+    horizon_from_cars,
+    implied_horizon,
+    vanishing_row,
+)
 from vehicle_detection.io.images import read_image
 from vehicle_detection.search import SearchPlan
 

@@ -70,6 +70,7 @@ def test_bars_around_frames_are_found(clip_a, bars, black):
 
 def test_bars_of_a_compressed_image_are_found_within_a_pixel(test_frames):
     ok, jpeg = cv2.imencode(".jpg", pad(test_frames[0], 60, 60, 120, 120), [cv2.IMWRITE_JPEG_QUALITY, 60])
+    assert ok
     x1, y1, x2, y2 = active_area(cv2.imdecode(jpeg, cv2.IMREAD_COLOR))
     assert abs(x1 - 120) <= 1 and abs(y1 - 60) <= 1 and abs(x2 - 1400) <= 1 and abs(y2 - 780) <= 1
 
