@@ -9,7 +9,14 @@ import pytest
 from conftest import REPO
 from vehicle_detection.config import DetectorConfig
 from vehicle_detection.detector import Detector
-from vehicle_detection.footage.horizon import TOLERANCE, CarHorizon, estimate_horizon, horizon_from_cars, implied_horizon, vanishing_row
+from vehicle_detection.footage.horizon import (
+    TOLERANCE,
+    CarHorizon,
+    estimate_horizon,
+    horizon_from_cars,
+    implied_horizon,
+    vanishing_row,
+)
 from vehicle_detection.io.images import read_image
 from vehicle_detection.search import SearchPlan
 
@@ -83,7 +90,8 @@ def shifted(image: np.ndarray, rows: int) -> np.ndarray:
 def test_detector_follows_a_camera_with_a_higher_horizon(test_frames):
     detector = Detector()
     assert detector.estimates_horizon
-    video = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4")]  # horizon 0.1 of the height higher
+    # horizon 0.1 of the height higher; the first HORIZON_FRAMES (12) frames are all it measures
+    video = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 12)]
     tracker = detector.new_tracker()
     moved, rest = detector.for_footage(iter(video), tracker)
     assert moved.config.plan.horizon == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.01)
@@ -116,7 +124,7 @@ def test_video_horizon_is_kept_in_the_tracker_state_across_chunks():
     assert det.config.plan.horizon == state.horizon
     # The project camera's own footage leaves the plan as written.
     tracker3 = detector.new_tracker()
-    det, _ = detector.for_footage(iter(_first_frames(REPO / "test_video.mp4")), tracker3)
+    det, _ = detector.for_footage(iter(_first_frames(REPO / "test_video.mp4", 12)), tracker3)
     assert det.config is detector.config and tracker3.state.horizon is None and tracker3.state.horizon_searched
 
 
@@ -149,19 +157,31 @@ def test_cli_horizon_values(value, auto, horizon):
     assert Detector(config=config).estimates_horizon is (auto and horizon is None)
 
 
-def test_cli_reports_the_estimated_horizon(tmp_path, capsys):
-    from vehicle_detection.cli import main
+@pytest.fixture(scope="module")
+def tilted_video(tmp_path_factory):
+    """The test video's first 12 frames (all the horizon is measured on) as a camera tilted down
+    by 0.1 sees them, written to a file; and its first 12 frames as they are (stream-copied)."""
+    import media
+
     from vehicle_detection.io.video import VideoWriter
 
-    video = tmp_path / "tilted.mp4"
-    with VideoWriter(video, 25, (1280, 720)) as writer:
+    folder = tmp_path_factory.mktemp("tilted")
+    video = folder / "tilted.mp4"
+    with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
         for frame in _first_frames(REPO / "test_video.mp4", 12):
             writer.write(shifted(frame, 72))
-    assert main(["detect", str(video), "--no-progress"]) == 0
+    return video, media.copy_packets(REPO / "test_video.mp4", folder / "level.mp4", max_frames=12)
+
+
+def test_cli_reports_the_estimated_horizon(tmp_path, capsys, tilted_video):
+    from vehicle_detection.cli import main
+
+    video, level = tilted_video
+    assert main(["detect", str(video), "--no-progress", "--no-video", "--boxes", str(tmp_path / "t.csv")]) == 0
     out = capsys.readouterr().out
     line = [l for l in out.splitlines() if l.startswith("horizon: ")]
     assert len(line) == 1 and float(line[0].split()[1]) == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.01)
-    assert main(["detect", str(REPO / "test_video.mp4"), "--out", str(tmp_path / "o.mp4"), "--boxes", str(tmp_path / "o.csv"),
+    assert main(["detect", str(level), "--out", str(tmp_path / "o.mp4"), "--boxes", str(tmp_path / "o.csv"),
                  "--no-progress"]) == 0
     assert "horizon: " not in capsys.readouterr().out  # the project camera: the plan as written
 
@@ -294,23 +314,29 @@ def test_the_cars_of_the_project_camera_agree_with_its_lines():
     assert from_cars == pytest.approx(estimate_horizon(frames, min_frames=3), abs=2 * TOLERANCE)
 
 
-def test_cli_says_where_the_horizon_came_from(tmp_path, capsys, monkeypatch):
+def test_cli_says_where_the_horizon_came_from(tmp_path, capsys, monkeypatch, tilted_video):
     from vehicle_detection.cli import main
-    from vehicle_detection.io.video import VideoWriter
 
     _without_lines(monkeypatch)
-    video = tmp_path / "tilted.mp4"
-    with VideoWriter(video, 25, (1280, 720)) as writer:
-        for frame in _first_frames(REPO / "test_video.mp4", 12):
-            writer.write(shifted(frame, 72))
-    assert main(["detect", str(video), "--no-progress"]) == 0
+    video, _ = tilted_video
+    assert main(["detect", str(video), "--no-progress", "--no-video", "--boxes", str(tmp_path / "t.csv")]) == 0
     line = [l for l in capsys.readouterr().out.splitlines() if l.startswith("horizon: ")]
     assert len(line) == 1 and "estimated from the cars found in the video" in line[0]
 
 
+def _quick_looks(frames: int) -> Detector:
+    """The embedded detector without shot cuts, its cars read off ``frames`` of the 12 frames of
+    each look at the horizon (4 by default): the tests of when the shot is looked at again need
+    no more (the cars' horizon itself is tested on the default's 4 above)."""
+    import dataclasses
+
+    config = Detector().config
+    return Detector(config=config.replace(shot_cuts=None, car_horizon=dataclasses.replace(config.car_horizon, frames=frames)))
+
+
 def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeypatch):
     _without_lines(monkeypatch)
-    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    detector = _quick_looks(1)  # no car on a grey picture: one frame a look will do
     grey = np.full((720, 1280, 3), 90, np.uint8)
     tracker = detector.new_tracker()
     list(detector.track([grey] * 50, tracker))
@@ -322,43 +348,55 @@ def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeyp
     assert tracker.state.horizon_retry is None  # with the lines only, no second look
 
 
-def test_cars_that_come_later_give_the_horizon(monkeypatch):
-    """An empty road first, then cars: the horizon is read off them when the shot is measured
-    again, and the bands move there (lines give none; the camera tilted down by 0.1)."""
-    _without_lines(monkeypatch)
-    detector = Detector(config=Detector().config.replace(shot_cuts=None))
-    cars = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 38)]
-    road = cars[0].copy()
-    road[300:] = road[-1:].mean(axis=(0, 1)).astype(np.uint8)  # no car, no line
-    video = [road] * 36 + cars
-    tracker = detector.new_tracker()
-    found = list(detector.track(video, tracker))
-    assert tracker.state.horizon_source == "cars" and tracker.state.horizon_retry is None
-    assert tracker.state.horizon == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
-    # measured again before frame 48 on frames 36-47: the frames after it are searched there, and
-    # the test video's two cars are found in each (the plan as written finds neither)
-    assert all(len(f) == 2 for f in found[50:])
-    off = Detector(config=detector.config.replace(car_horizon=None))
-    assert sum(len(f) for f in off.track(video)) == 0
+CARS = 20  # frames of the test video after the empty road: the bands move before frame 48, its cars are confirmed by 50
 
 
 def _road_then_cars():
-    """36 frames of an empty road without lines, then the test video's 38 frames, shifted as a
-    camera tilted down by 0.1 sees them."""
-    cars = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 38)]
+    """36 frames of an empty road without lines, then the test video's first :data:`CARS` frames,
+    shifted as a camera tilted down by 0.1 sees them. The shot is measured on frames 0-11, again
+    before frame 24 (on 12-23: the road) and before frame 48 (on 36-47: the cars)."""
+    cars = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", CARS)]
     road = cars[0].copy()
-    road[300:] = road[-1:].mean(axis=(0, 1)).astype(np.uint8)
+    road[300:] = road[-1:].mean(axis=(0, 1)).astype(np.uint8)  # no car, no line
     return [road] * 36 + cars
 
 
-def test_a_second_look_reads_frames_as_decoded_not_as_drawn_on(monkeypatch):
+@pytest.fixture(scope="module")
+def road_then_cars_run():
+    """:func:`_road_then_cars` through a detector without shot cuts whose lines give no horizon,
+    once for the tests below: ``(video, detector, boxes of each frame, tracker state)``."""
+    with pytest.MonkeyPatch.context() as mp:
+        _without_lines(mp)
+        video = _road_then_cars()
+        detector = _quick_looks(2)
+        tracker = detector.new_tracker()
+        found = [f for _, f in detector.track_frames([f.copy() for f in video], tracker)]
+    return video, detector, found, tracker.state
+
+
+@pytest.mark.xdist_group(name="horizon_road_then_cars")
+def test_cars_that_come_later_give_the_horizon(monkeypatch, road_then_cars_run):
+    """An empty road first, then cars: the horizon is read off them when the shot is measured
+    again, and the bands move there (lines give none; the camera tilted down by 0.1)."""
+    _without_lines(monkeypatch)
+    video, detector, found, state = road_then_cars_run
+    assert state.horizon_source == "cars" and state.horizon_retry is None
+    assert state.horizon == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
+    # measured again before frame 48 on frames 36-47: the frames after it are searched there, and
+    # the test video's two cars are found in each (the plan as written finds neither)
+    assert len(found) == len(video) == 36 + CARS and all(len(f) == 2 for f in found[50:])
+    off = Detector(config=detector.config.replace(car_horizon=None))
+    assert sum(len(f) for f in off.track(video[36:])) == 0  # the cars, at the plan's bands
+
+
+@pytest.mark.xdist_group(name="horizon_road_then_cars")
+def test_a_second_look_reads_frames_as_decoded_not_as_drawn_on(monkeypatch, road_then_cars_run):
     """The caller draws on the frames it gets back (``process_video`` does); the frames of a
     second look at the horizon are the decoded ones all the same."""
     _without_lines(monkeypatch)
-    detector = Detector(config=Detector().config.replace(shot_cuts=None))
-    clean = [f[1] for f in detector.track_frames([f.copy() for f in _road_then_cars()])]
+    video, detector, clean, _ = road_then_cars_run
     drawn = []
-    for frame, found in detector.track_frames([f.copy() for f in _road_then_cars()]):
+    for frame, found in detector.track_frames([f.copy() for f in video]):
         frame[...] = 255  # drawn over, entirely
         drawn.append(found)
     assert sum(map(len, clean)) > 0 and all(a == b for a, b in zip(clean, drawn, strict=True))
@@ -371,15 +409,17 @@ def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path):
 
     _without_lines(monkeypatch)
     video = tmp_path / "road_then_cars.mp4"
-    with VideoWriter(video, 25, (1280, 720)) as writer:
+    with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
         for frame in _road_then_cars():
             writer.write(frame)
-    detector = Detector(config=Detector().config.replace(shot_cuts=None))
+    detector = _quick_looks(2)
     tracker = detector.new_tracker()
     whole = process_video(video, None, detector=detector, progress=False, tracker=tracker)
     assert tracker.state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
-    for chunk in (10, 20):  # one video and one whole run for both chunk sizes
-        assert detect_chunked(video, chunk, detector=detector) == whole, chunk
+    # Chunks of 10 frames start with a look pending and fewer than 12 frames before them (at 10),
+    # with 12 (at 20 and 40, looks due at 24 and 48 inside them) and after the last look (at 50,
+    # as the cars' tracks are confirmed): every case chunks of 20 met, and more.
+    assert detect_chunked(video, 10, detector=detector) == whole
 
 
 @pytest.mark.parametrize("name", ["test1.jpg", "test4.jpg", "test6.jpg"])

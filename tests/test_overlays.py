@@ -70,6 +70,7 @@ def test_bars_around_frames_are_found(clip_a, bars, black):
 
 def test_bars_of_a_compressed_image_are_found_within_a_pixel(test_frames):
     ok, jpeg = cv2.imencode(".jpg", pad(test_frames[0], 60, 60, 120, 120), [cv2.IMWRITE_JPEG_QUALITY, 60])
+    assert ok
     x1, y1, x2, y2 = active_area(cv2.imdecode(jpeg, cv2.IMREAD_COLOR))
     assert abs(x1 - 120) <= 1 and abs(y1 - 60) <= 1 and abs(x2 - 1400) <= 1 and abs(y2 - 780) <= 1
 
@@ -211,8 +212,10 @@ def test_static_mask_of_the_project_camera_spares_the_road_and_the_cars(clip_a):
 
     labels = load_annotations(REPO / "dev_set" / "clip_A.json")
     horizon, bottom = int(0.583 * 720), int(0.92 * 720)  # below: the bonnet
+    later = frames_of(CLIP_A, 100, 112)  # frames 100-111 and 200-211, decoded in one pass
     for start in (0, 100, 200):
-        frames = clip_a if start == 0 else frames_of(CLIP_A, start)
+        frames = {0: clip_a, 100: later[:12], 200: later[100:]}[start]
+        assert len(frames) == 12
         mask = static_mask(frames)
         assert not mask[horizon:bottom].any(), start
         for index, frame_labels in labels.frames.items():
@@ -277,14 +280,17 @@ def test_no_track_lives_on_the_windscreen_mount():
     from vehicle_detection.detections import Detections
     from vehicle_detection.detector import Detector
 
-    frames = frames_of(HIGHWAY, 0, 60)  # 107 boxes with the mask, 60 on the mount without it (2026-11-29)
+    # The detector learns the mount on every third of the first 60 frames; the first 30 are
+    # tracked: 49 boxes with the mask, 30 on the mount without it (2026-11-29; 107 and 60 in 60 frames).
+    frames = frames_of(HIGHWAY, 0, 60)
     # Heat goes to the windows themselves (the mount detector has no box refinement): the mask is
     # what is tested.
     detector = mount_detector(frames[::3])
+    frames = frames[:30]
     tracker = detector.new_tracker()
     found = Detections.concatenate(detector.track(frames, tracker))
     integral = mask_integral(tracker.state.overlays.mask)
-    assert len(found) >= 100 and (mask_share(found.xyxy, integral) <= 0.5).all()
+    assert len(found) >= 45 and (mask_share(found.xyxy, integral) <= 0.5).all()
     # Without the mask, the same detector's tracks sit on the mount.
     unmasked = Detector(detector.model, detector.config.replace(auto_overlays=False))
     before = Detections.concatenate(unmasked.track(frames))
