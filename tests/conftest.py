@@ -163,3 +163,14 @@ def shipped_patches(test_frames):
         x = int(rng.integers(0, frame.shape[1] - side))
         out.append(cv2.resize(frame[y : y + side, x : x + side], (64, 64), interpolation=cv2.INTER_AREA))
     return np.stack(out)
+
+
+@pytest.fixture(scope="session")
+def calibrated_camera():
+    """The project camera calibrated on the twenty shared chessboard photos (seconds; once a worker)."""
+    from vehicle_detection.road.camera import calibrate
+
+    folder = shared_data_dir() / "camera_cal"
+    if not folder.is_dir():
+        pytest.skip(f"no chessboard photos at {folder}")
+    return calibrate(folder)

@@ -236,12 +236,11 @@ def test_test_video(test_video_estimate):
 
 
 @pytest.mark.skipif(not (shared_data_dir() / "camera_cal").is_dir(), reason=f"no chessboard photos in {shared_data_dir()}")
-def test_test_video_distances_against_the_calibrated_camera(test_video_estimate):
+def test_test_video_distances_against_the_calibrated_camera(test_video_estimate, calibrated_camera):
     from vehicle_detection.io.images import read_image
-    from vehicle_detection.road.camera import calibrate
     from vehicle_detection.road.lanes import birds_eye_from_straight
 
-    cam = calibrate(shared_data_dir() / "camera_cal")
+    cam = calibrated_camera
     cal = birds_eye_from_straight([read_image(shared_data_dir() / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)], cam)
     view, _ = test_video_estimate
     # points on the road straight ahead, 4 to 30 m (calibrated) beyond the bottom row

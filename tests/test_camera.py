@@ -169,8 +169,8 @@ REAL = shared_data_dir() / "camera_cal"
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason=f"no chessboard photos at {REAL}")
-def test_real_photos():
-    cam = calibrate(REAL)
+def test_real_photos(calibrated_camera):
+    cam = calibrated_camera  # calibrate(REAL), once for the session
     assert cam.image_size == (1280, 720)
     assert len(cam.images_used) >= 17
     assert set(cam.images_cropped) == {"calibration7.jpg", "calibration15.jpg"}

@@ -244,13 +244,10 @@ needs_data = pytest.mark.skipif(
 
 
 @pytest.fixture(scope="module")
-def real_camera():
-    from vehicle_detection.road.camera import calibrate
+def real_camera(calibrated_camera):
     from vehicle_detection.io.images import read_image
 
-    # Half the chessboard photos (the odd-numbered ten) calibrate in half the time, with the
-    # distortion of all twenty (k1 -0.25 against -0.24); tests/test_camera.py calibrates on all.
-    cam = calibrate([DATA / "camera_cal" / f"calibration{i}.jpg" for i in range(1, 20, 2)])
+    cam = calibrated_camera
     frames = [read_image(DATA / "lanes" / f"straight_lines{i}.jpg") for i in (1, 2)]
     return cam.replace(birds_eye=birds_eye_from_straight(frames, cam)), frames
 
