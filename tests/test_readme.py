@@ -166,7 +166,8 @@ def test_every_readme_python_block_runs_as_pasted_in_order(clone):
 def test_a_python_block_with_a_bad_name_fails(tmp_path):
     """The check can fail: a name that does not exist, or a method called on the class, stops the
     run at its block, which is named; names carry over between blocks, as when pasted."""
-    ok = ["import vehicle_detection as vd\nfound = 1", "assert found == 1\nprint(vd.Detector)"]
+    # The good blocks use the package's name only: a second of imports less in each of the four runs.
+    ok = ["import vehicle_detection as vd\nfound = 1", "assert found == 1\nprint(vd.__name__)"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = run_python_blocks(ok, tmp_path, env)
     assert proc.returncode == 0 and proc.stdout.splitlines()[-1] == "2 blocks ran", proc.stderr
