@@ -9,6 +9,7 @@ from pathlib import Path
 import vehicle_detection
 
 PACKAGE = Path(vehicle_detection.__file__).parent
+#: Compiles (or loads) a parallel kernel of the package and checks its numbers: 6 s of CPU to compile.
 SCRIPT = (
     "import numpy as np\n"
     "from vehicle_detection import _jit\n"
@@ -17,12 +18,23 @@ SCRIPT = (
     "assert out.shape == (768,) and float(out[0]) == 7.0, out[:3]\n"
     "print(_jit.CACHE_DIR)\n"
 )
+#: The same with a small plain kernel (L2-Hys of four ones: all 0.5, within fastmath's rounding), 1.5 s of CPU: enough where
+#: only the cache's folder is in question (the parallel kernel's caching is checked above).
+SMALL_SCRIPT = (
+    "import numpy as np\n"
+    "from vehicle_detection import _jit\n"
+    "from vehicle_detection.features import _l2hys\n"
+    "out = np.ones(4)\n"
+    "_l2hys(out)\n"
+    "assert np.allclose(out, 0.5, rtol=1e-6, atol=0), out\n"  # fastmath: within rounding
+    "print(_jit.CACHE_DIR)\n"
+)
 
 
-def _run(tmp_path, **env_overrides):
+def _run(tmp_path, script=SMALL_SCRIPT, **env_overrides):
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env.update(env_overrides)
-    proc = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return proc.stdout.strip().splitlines()[-1]
 
@@ -34,7 +46,7 @@ def _new_index_files(folder: Path, since: float) -> list[Path]:
 def test_cache_goes_to_the_user_cache_folder(tmp_path):
     start = time.time() - 1
     cache_home = tmp_path / "cache"
-    where = _run(tmp_path, XDG_CACHE_HOME=str(cache_home))
+    where = _run(tmp_path, SCRIPT, XDG_CACHE_HOME=str(cache_home))  # the default: a parallel kernel
     assert Path(where) == cache_home / "vehicle-detection" / "numba"
     assert _new_index_files(cache_home, start), "no kernel was cached in the user cache folder"
     assert not _new_index_files(PACKAGE, start), "a kernel cache was written inside the package"
@@ -84,7 +96,8 @@ def test_install_that_cannot_be_written_runs_help_and_detect(tmp_path):
     assert help_run.returncode == 0 and "detect" in help_run.stdout, help_run.stderr[-2000:]
     out = tmp_path / "out"
     out.mkdir()
-    run = subprocess.run([*cli, "detect", str(video), "--no-video", "--out-dir", str(out), "--no-progress"],
+    # Four frames: the kernels are compiled (uncached) all the same, and a car is tracked.
+    run = subprocess.run([*cli, "detect", str(video), "--no-video", "--out-dir", str(out), "--no-progress", "--frames", "0-3"],
                          env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
     assert (out / "test_video_boxes.csv").read_text().count("\n") > 1

@@ -6,6 +6,7 @@ import importlib
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from vehicle_detection import warmup
 
@@ -80,30 +81,54 @@ def _compiled_in_a_fresh_cache(tmp_path, code: str) -> tuple[set, set]:
     return set(proc.stdout.split()), files
 
 
-def test_the_helper_fills_a_fresh_cache_with_its_kernels_only(tmp_path):
+@pytest.fixture(scope="module")
+def helper_half(tmp_path_factory):
+    """The helper's half run alone in a fresh cache: (kernels it compiled, index files, the cache)."""
+    tmp_path = tmp_path_factory.mktemp("helper_half")
+    compiled, files = _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection.warmup import _helper\n_helper()\n")
+    return compiled, files, tmp_path / "cache"
+
+
+@pytest.fixture(scope="module")
+def main_half(tmp_path_factory):
+    """The main process's half run alone in another fresh cache: (kernels it compiled, index files, the cache)."""
+    tmp_path = tmp_path_factory.mktemp("main_half")
+    compiled, files = _compiled_in_a_fresh_cache(
+        tmp_path, "from vehicle_detection import warmup, load_default_model\nwarmup._compile_main(load_default_model())\n")
+    return compiled, files, tmp_path / "cache"
+
+
+#: The tests of the two halves' runs: one worker makes each run once.
+halves_group = pytest.mark.xdist_group(name="warmup-halves")
+
+
+@halves_group
+def test_the_helper_fills_a_fresh_cache_with_its_kernels_only(helper_half):
     """Its search of a blank frame with the main half's kernels as no-ops must run through (each
     no-op zeroes its kernel's output, the last argument) and compile exactly its share."""
-    compiled, files = _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection.warmup import _helper\n_helper()\n")
+    compiled, files, _ = helper_half
     helper = {fn for _, fn, _ in warmup._HELPER_KERNELS + warmup._HELPER_REFINE_KERNELS}
     assert compiled == helper | {"_l2hys"}  # _block_map's normalisation, a kernel of its own
     assert {f.split(".")[1] for f in files} == helper | {"_l2hys"}
 
 
-def test_the_main_half_compiles_the_other_kernels(tmp_path):
-    compiled, _ = _compiled_in_a_fresh_cache(
-        tmp_path, "from vehicle_detection import warmup, load_default_model\nwarmup._compile_main(load_default_model())\n")
+@halves_group
+def test_the_main_half_compiles_the_other_kernels(main_half):
+    compiled, _, _ = main_half
     assert compiled == {fn for _, fn, _ in warmup._MAIN_KERNELS + warmup._MAIN_REFINE_KERNELS}
 
 
-def test_a_cache_is_warm_only_with_indexes_of_this_install_and_python(tmp_path, monkeypatch):
-    # numba's own cache, filled by both halves: warm, also once the sources are touched (numba
+@halves_group
+def test_a_cache_is_warm_only_with_indexes_of_this_install_and_python(tmp_path, monkeypatch, helper_half, main_half):
+    # numba's own cache, filled by both halves (each half's files, from its own run above, put in
+    # one cache: a kernel is a file of its own): warm, also once the sources are touched (numba
     # checks their content). The same files for another Python, or in another install's folder: cold.
     import os
     import shutil
     import sys
 
-    _compiled_in_a_fresh_cache(tmp_path, "from vehicle_detection import warmup, load_default_model\n"
-                                         "warmup._helper()\nwarmup._compile_main(load_default_model())\n")
+    for _, _, cache in (helper_half, main_half):
+        shutil.copytree(cache, tmp_path / "cache", dirs_exist_ok=True)
     monkeypatch.setattr(warmup._jit, "CACHE_DIR", tmp_path / "cache")
     kernels = warmup._all_kernels(refine=True)
     folder = warmup._cache_folder()
@@ -216,8 +241,6 @@ def test_a_run_that_fails_while_the_kernels_load_does_not_wait_for_them(default_
     clean-up runs, while the loading goes on (or is abandoned at exit)."""
     import threading
     import time
-
-    import pytest
 
     from vehicle_detection import detector as D
 
