@@ -506,14 +506,14 @@ def test_readme_documents_the_exit_codes():
 
 @needs_archives
 def test_train_json_on_a_small_data_folder(tmp_path, capsys):
-    data = small_archives(tmp_path / "data", 150)
+    data = small_archives(tmp_path / "data", 60)
     model = tmp_path / "m.npz"
     assert main(["train", "--data-dir", str(data), "--json", "--model", str(model)]) == 0
     report = last_json(capsys.readouterr().out)
     keys = {"random_split_accuracy", "grouped_split_accuracy", "n_train", "n_test", "feature_seconds", "fit_seconds"}
     assert keys <= set(report)
     assert 0.5 < report["random_split_accuracy"] <= 1 and 0.5 < report["grouped_split_accuracy"] <= 1
-    assert report["n_train"] + report["n_test"] == report["n_images"] == 300
+    assert report["n_train"] + report["n_test"] == report["n_images"] == 120
     assert report["feature_seconds"] >= 0 and report["fit_seconds"] >= 0
     # The saved model is usable by detect.
     img = tmp_path / "street.jpg"
@@ -526,11 +526,11 @@ def test_train_json_on_a_small_data_folder(tmp_path, capsys):
 def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(tmp_path, capsys):
     from vehicle_detection.classifier import VehicleClassifier
 
-    data = small_archives(tmp_path / "data", 150)
+    data = small_archives(tmp_path / "data", 60)
     labels = Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json"
     model = tmp_path / "m.npz"
     assert main(["train", "--data-dir", str(data), "--labels", str(labels), "--json", "--model", str(model)]) == 0
-    assert last_json(capsys.readouterr().out)["n_images"] == 300 + 12 * 9  # 9 labelled cars, 12 patches each
+    assert last_json(capsys.readouterr().out)["n_images"] == 120 + 12 * 9  # 9 labelled cars, 12 patches each
     loaded = VehicleClassifier.load(model)
     assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
     assert loaded.metrics["box_refinement"]["alpha"] == REFINE_ALPHA
@@ -620,7 +620,7 @@ def test_train_augment_adds_copies_and_the_model_says_how_it_was_trained(tmp_pat
 
 def test_mine_negatives_horizon_takes_a_fraction(tmp_path):
     labels = str(Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json")
-    out = run_cli("mine-negatives", "--labels", labels, "--horizon", "auto", "--out", str(tmp_path / "n"))
+    out = run_in_process(["mine-negatives", "--labels", labels, "--horizon", "auto", "--out", str(tmp_path / "n")], tmp_path)
     assert out.returncode == 2 and "fraction" in out.stderr
 
 
