@@ -454,7 +454,8 @@ def test_detect_video_second_run_needs_overwrite(detected_clip):
     clip, before = detected_clip
     out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
     outputs = {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)}
-    proc = run_cli("detect", str(clip), "--no-progress", "--out-dir", str(clip.parent))
+    # in this process (a real process's exit 5 is test_a_real_process_exits_as_main_returns's)
+    proc = run_in_process(["detect", str(clip), "--no-progress", "--out-dir", str(clip.parent)], clip.parent)
     assert proc.returncode == 5
     assert proc.stderr.splitlines() == [f"{ERROR_PREFIX}{out}: output exists; pass --overwrite to replace it"]
     assert {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)} == outputs
