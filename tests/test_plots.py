@@ -106,9 +106,10 @@ def test_save_figure_small_plot_is_truecolour(tmp_path):
 
 
 def test_save_figure_photo_is_quantised_keeping_accent_colours(tmp_path):
-    fig, ax = plt.subplots(figsize=(8, 6))
-    ax.imshow(RNG.integers(0, 256, (300, 400, 3), dtype=np.uint8))
-    ax.plot([0, 399], [150, 150], color=plots.BOX_COLOR, lw=6)
+    # random pixels: far above the budget at any size (a quarter of the 800x600 it was drawn at)
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.imshow(RNG.integers(0, 256, (150, 200, 3), dtype=np.uint8))
+    ax.plot([0, 199], [75, 75], color=plots.BOX_COLOR, lw=6)
     path = plots.save_figure(fig, tmp_path / "photo.png", budget=10_000)
     png_ok(path)
     img = Image.open(path)

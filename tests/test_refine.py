@@ -91,12 +91,13 @@ def _synthetic_road(rng, n_cars=2, h=240, w=400):
 
 def test_learned_refinement_tightens_windows_on_held_out_frames():
     rng = np.random.default_rng(0)
-    train = [_synthetic_road(rng, 1) for _ in range(40)]
+    # 20 training frames and 8 held-out ones (were 40 and 15): the mean IoU still gains 0.36
+    train = [_synthetic_road(rng, 1) for _ in range(20)]
     reg = fit_box_regressor(train, SMALL, per_box=24, alpha=10.0, reference_height=240)
     from vehicle_detection.features import extract_features
 
     before, after = [], []
-    for frame, boxes in (_synthetic_road(rng, 1) for _ in range(15)):
+    for frame, boxes in (_synthetic_road(rng, 1) for _ in range(8)):
         wins = np.rint(jittered_windows(boxes[0], rng, 10))
         refined = reg.refine(wins, extract_features(crop_windows(frame, wins, SMALL.window), SMALL), frame.shape)
         before.append(box_iou(wins, boxes)[:, 0].mean())
@@ -173,14 +174,15 @@ def test_accepted_windows_teach_the_refinement_what_jittering_does_not(zoom):
     import cv2
 
     rng = np.random.default_rng(5)
-    train = [_long_car(rng) for _ in range(40)]
+    # 20 training frames and 8 held-out ones (were 40 and 15): the accepted windows still gain 0.35 IoU
+    train = [_long_car(rng) for _ in range(20)]
     train = [(cv2.resize(f, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST), b * zoom, w * zoom) for f, b, w in train]
     jitter_only = fit_box_regressor([t[:2] for t in train], SMALL, per_box=24, alpha=10.0, reference_height=240)
     with_hot = fit_box_regressor(train, SMALL, per_box=24, alpha=10.0, reference_height=240, hot_iou=0.3)
     from vehicle_detection.features import extract_features
 
     iou = {"jitter": [], "hot": []}
-    for frame, boxes, rear in (_long_car(rng) for _ in range(15)):
+    for frame, boxes, rear in (_long_car(rng) for _ in range(8)):
         feats = extract_features(crop_windows(frame, rear, SMALL.window), SMALL)
         for name, reg in (("jitter", jitter_only), ("hot", with_hot)):
             iou[name].append(box_iou(reg.refine(rear, feats, frame.shape), boxes)[0, 0])

@@ -60,7 +60,9 @@ def test_plan_windows_match_search_boxes(default_model):
         assert b[:, 0].min() >= 0 and b[:, 2].max() <= 1280
 
 
-@pytest.mark.parametrize(("index", "border"), [(0, "frame"), (5, "frame"), (3, "crop")])
+# One frame a window border: a second frame with the same border runs the same code (test5 with
+# "frame" was dropped: the plain reference takes seconds a frame).
+@pytest.mark.parametrize(("index", "border"), [(0, "frame"), (3, "crop")])
 def test_fast_and_plain_paths_agree_on_real_frames(default_model, test_frames, index, border):
     from dataclasses import replace
 
@@ -155,8 +157,12 @@ def test_a_changed_model_changes_the_scores(default_model, test_frames):
     before = search(frame, default_model, all_windows=True)
     shifted = default_model.replace(intercept=default_model.intercept + 1.0)
     after = search(frame, shifted, all_windows=True)
+    assert len(after) > 1000
     np.testing.assert_allclose(after.score - before.score, 1.0, atol=1e-9)
-    np.testing.assert_allclose(search_plain(frame, shifted).score, after.score, atol=1e-5)  # float32 cells
+    # The plain reference agrees with the changed model's fast path (on one band of the plan: the
+    # reference on the whole plan is test_fast_and_plain_paths_agree_on_real_frames's, seconds).
+    band = SearchPlan(scales=(default_model.detector_config.plan.scales[0],))
+    np.testing.assert_allclose(search_plain(frame, shifted, band).score, search(frame, shifted, band, all_windows=True).score, atol=1e-5)  # float32 cells
 
 
 def test_search_uses_the_models_plan_by_default(default_model, test_frames):
