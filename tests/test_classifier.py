@@ -27,16 +27,6 @@ def _stratified(labels, n_per_class, seed):
 
 
 @pytest.fixture(scope="module")
-def small_model(dataset):
-    """This module's model: the default feature config trained on 1,000 random patches (the
-    session's ``small_model`` of conftest takes 3,000, three times the fit, and no test here needs
-    them: it classifies the 200 real patches below 99.5 % right)."""
-    idx = np.random.default_rng(0).choice(len(dataset), 1000, replace=False)
-    cfg = FeatureConfig()
-    return VehicleClassifier.fit(extract_features(dataset.images[idx], cfg), dataset.labels[idx], cfg)
-
-
-@pytest.fixture(scope="module")
 def real_features(dataset, small_model):
     idx = _stratified(dataset.labels, 100, seed=11)
     return extract_features(dataset.images[idx], small_model.config), dataset.labels[idx], dataset.images[idx]
