@@ -1387,6 +1387,17 @@ def _no_exit():
     return nullcontext()
 
 
+@pytest.fixture(scope="module")
+def short_drive(tmp_path_factory):
+    """``test_video.mp4`` twice over (76 frames, no re-encoding): for a run that a dask worker
+    goes on with after the test stopped the command or its scheduler. Stopped at its 2nd or 3rd
+    frame (an output's partial file past 20 kB), it leaves the worker about 70 frames to finish,
+    not the 225 of ``long_video``, and still seconds for the stop to land midway."""
+    if not TEST_VIDEO.is_file():
+        pytest.skip("test_video.mp4 not in the checkout")
+    return media.copy_packets(TEST_VIDEO, tmp_path_factory.mktemp("drive") / "drive.mp4", loops=2)
+
+
 @pytest.fixture()
 def process_cluster():
     """A LocalCluster with one worker process, whose task fails at the first worker death."""
@@ -1926,12 +1937,12 @@ def test_moviepy_adapter_takes_what_the_detector_takes(case, convert):
 
 
 @posix_only
-def test_sigint_with_a_scheduler_is_130_and_leaves_whole_outputs_or_none(tmp_path, long_video, process_cluster):
+def test_sigint_with_a_scheduler_is_130_and_leaves_whole_outputs_or_none(tmp_path, short_drive, process_cluster):
     """Ctrl-C stops the command at once (exit 130); an input a worker is running may still be
     finished by it (dask cannot stop a running task), but only whole: never a .partial left."""
     out = tmp_path / "o"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(long_video), "--out-dir", str(out), "--no-progress",
+        [sys.executable, "-m", "vehicle_detection.cli", "detect", str(short_drive), "--out-dir", str(out), "--no-progress",
          "--scheduler", process_cluster.scheduler_address],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
     )  # fmt: skip
@@ -1942,7 +1953,7 @@ def test_sigint_with_a_scheduler_is_130_and_leaves_whole_outputs_or_none(tmp_pat
     while partials(out) and time.monotonic() < deadline:  # the worker finishes (or drops) the input
         time.sleep(0.1)
     assert partials(out) == []
-    assert sorted(p.name for p in out.iterdir()) in ([], ["long_boxes.csv", "long_detected.mp4"])
+    assert sorted(p.name for p in out.iterdir()) in ([], ["drive_boxes.csv", "drive_detected.mp4"])
 
 
 # --- issue 45: formula injection, huge arrays, absurd gains ------------------------------------
