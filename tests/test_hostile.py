@@ -1744,12 +1744,12 @@ def test_chunked_range_past_the_last_frame():
 
 @pytest.fixture()
 def small_tmpfs(tmp_path):
-    """A 1 MiB tmpfs (root, Linux); skipped where mounting is not permitted (CI containers)."""
+    """A 256 kB tmpfs (root, Linux); skipped where mounting is not permitted (CI containers)."""
     where = tmp_path / "full"
     where.mkdir()
     if sys.platform != "linux" or os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root on Linux")
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(where)], capture_output=True, text=True)
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(where)], capture_output=True, text=True)
     if proc.returncode != 0:
         pytest.skip(f"mount -t tmpfs not permitted here: {proc.stderr.strip()}")
     try:
@@ -1773,15 +1773,17 @@ def _committed_whole_or_not_at_all(out: Path, stems, video=True) -> list[str]:
 
 @posix_only
 @needs_media
-def test_full_disk_during_a_batch_with_jobs_2(tmp_path, small_tmpfs):
+def test_full_disk_during_a_batch_with_jobs_2(tmp_path, capsys, small_tmpfs):
     videos = tmp_path / "videos"
     videos.mkdir()
     for stem in ("a", "b", "c"):
-        shutil.copy(TEST_VIDEO, videos / f"{stem}.mp4")  # each annotated video is about 1.7 MB
+        # 8 frames: each annotated video is about 400 kB, so that every input (2 at once) fills
+        # the 256 kB disk midway, as 38 frames (1.7 MB each) did a 1 MiB one
+        media.copy_packets(TEST_VIDEO, videos / f"{stem}.mp4", max_frames=8)
     (small_tmpfs / "a_boxes.csv").write_text("previous boxes\n")
-    proc = run_cli("detect", videos, "--out-dir", small_tmpfs, "--jobs", "2", "--no-progress", "--overwrite", "--preset", "ultrafast")
-    assert proc.returncode == 7, proc.stderr
-    err = proc.stderr.splitlines()
+    code, _, err = run_main(capsys, "detect", videos, "--out-dir", small_tmpfs, "--jobs", "2", "--no-progress", "--overwrite",
+                            "--preset", "ultrafast")
+    assert code == 7, err
     assert err and all(line.startswith(ERROR) and line.endswith("No space left on device") for line in err), err
     if not (small_tmpfs / "a_detected.mp4").exists():  # a failed: its previous output survives
         assert (small_tmpfs / "a_boxes.csv").read_text() == "previous boxes\n"
