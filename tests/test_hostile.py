@@ -949,9 +949,15 @@ STRAIGHT = [REPO.parent / "shared" / "data" / "lanes" / f"straight_lines{i}.jpg"
 def test_the_real_calibrated_camera_passes_every_check(tmp_path, capsys):
     from vehicle_detection.camera import Camera
 
+    # 9 of the 20 photos (half the time): a skipped one of each kind, the cropped one, 6 usable
+    photos = tmp_path / "camera_cal"
+    photos.mkdir()
+    for i in (1, 4, 7, 2, 3, 6, 8, 12, 14):
+        shutil.copy(CAMERA_CAL / f"calibration{i}.jpg", photos)
     camera = tmp_path / "camera.json"
-    code, _, err = run_main(capsys, "calibrate", CAMERA_CAL, "--straight", *STRAIGHT, "--out", camera)
+    code, out, err = run_main(capsys, "calibrate", photos, "--straight", *STRAIGHT, "--out", camera)
     assert (code, err) == (0, [])
+    assert "7 of 9 photos used" in "\n".join(out) and "calibration7.jpg: cropped" in "\n".join(out), out
     loaded = Camera.load(camera)
     assert loaded.birds_eye is not None and 0.5 < loaded.matrix[0, 0] / 1280 < 1.5
     image = tmp_path / "test1.jpg"
