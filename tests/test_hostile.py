@@ -14,6 +14,7 @@ and pipe cases run ``python -m vehicle_detection.cli`` in a subprocess, as a she
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import hashlib
@@ -1415,10 +1416,22 @@ def process_cluster():
     try:
         yield cluster
     finally:
+        _stop_workers(cluster)
         try:  # a test may have closed its scheduler: no 30-second wait for it to answer
             cluster.close(timeout=5)
         except Exception:  # noqa: BLE001 (the worker processes end with the cluster object anyway)
             pass
+
+
+def _stop_workers(cluster) -> None:
+    """Kill the worker processes of a test's cluster, not to be restarted by their nannies: one may
+    still run a task nobody waits for (the test closed its scheduler, or the command gave up on
+    it), which it would otherwise go on with for as long as the cluster takes to close."""
+    for nanny in cluster.workers.values():
+        nanny.close_gracefully()  # dask's own signal, at a cluster's shutdown, not to restart the worker
+        if nanny.process is not None and nanny.process.pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(nanny.process.pid, signal.SIGKILL)
 
 
 def _when_partial(folder: Path, action):
@@ -1549,6 +1562,7 @@ def nanny_cluster():
     try:
         yield cluster
     finally:
+        _stop_workers(cluster)
         cluster.close()
 
 
