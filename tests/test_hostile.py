@@ -1417,8 +1417,9 @@ def process_cluster():
         yield cluster
     finally:
         _stop_workers(cluster)
-        try:  # a test may have closed its scheduler: no 30-second wait for it to answer
-            cluster.close(timeout=5)
+        gone = cluster.scheduler.status.name in ("closing", "closed", "failed")
+        try:  # a test may have closed its scheduler: no 30-second wait for it to answer, nor 5
+            cluster.close(timeout=0.5 if gone else 5)
         except Exception:  # noqa: BLE001 (the worker processes end with the cluster object anyway)
             pass
 
