@@ -249,6 +249,22 @@ def test_find_duplicates_by_hand():
     assert find_duplicates(np.array([], dtype=str)) == []
 
 
+def test_decoding_threads_give_the_set_one_thread_gives(tmp_path):
+    """Threads decode runs of patches; the set, its order and a bad patch's error are those of one thread."""
+    vehicles = {f"vehicles/A/image{k}.png": _png(k) for k in range(23)}
+    non_vehicles = {f"non-vehicles/B/image{k}.png": _png(100 + k) for k in range(17)}
+    one = load_dataset(_fake_data(tmp_path / "data", vehicles, non_vehicles), n_jobs=1)
+    for n_jobs in (2, 3):
+        threads = load_dataset(tmp_path / "data", n_jobs=n_jobs)
+        assert np.array_equal(threads.images, one.images) and threads.names.tolist() == one.names.tolist()
+        assert threads.digests.tolist() == one.digests.tolist() and threads.labels.tolist() == one.labels.tolist()
+    assert len(one) == 40
+    non_vehicles["non-vehicles/B/image9.png"] = _png(9, size=(32, 32))
+    for n_jobs in (1, 3):
+        with pytest.raises(InputError, match=r"image9\.png: training patches must be 64x64, got 32x32"):
+            load_dataset(_fake_data(tmp_path / f"bad{n_jobs}", vehicles, non_vehicles), n_jobs=n_jobs)
+
+
 def test_missing_data_folder(tmp_path):
     missing = tmp_path / "no-data-here"
     with pytest.raises(InputError) as info:

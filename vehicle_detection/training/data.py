@@ -298,7 +298,7 @@ def load_dataset(
     *,
     drop_duplicates: bool = False,
     track_length: int = 100,
-    n_jobs: int = 4,
+    n_jobs: int = 1,
     extra_negatives: Iterable[str | os.PathLike] = (),
 ) -> Dataset:
     """Load the training set from the archives or their extracted folders.
@@ -313,7 +313,8 @@ def load_dataset(
     track_length : int
         Consecutive file numbers per group (see module docstring).
     n_jobs : int
-        Decoding threads.
+        Decoding threads. One is the default: decoding a 64x64 PNG holds the GIL most of its
+        time, so more threads take more CPU time and are no faster.
     extra_negatives : iterable of path-like
         Folders of further 64x64 non-vehicle PNGs, such as mined hard negatives: laid out like
         the data folder (``DIR/non-vehicles/<source>/*.png``) or PNGs directly in ``DIR``. Each
@@ -371,8 +372,13 @@ def _load(root: Path, stack: contextlib.ExitStack, drop_duplicates: bool, track_
             raise InputError(f"{shown}: training patches must be 64x64, got {img.shape[1]}x{img.shape[0]}")
         return img, hashlib.sha1(data).hexdigest()
 
-    with ThreadPoolExecutor(max_workers=max(1, n_jobs)) as pool:
-        loaded = list(pool.map(load, entries, chunksize=256))
+    if n_jobs <= 1:
+        loaded = [load(entry) for entry in entries]
+    else:  # runs of entries, not one task each: a task's hand-over costs as much as a patch's decoding
+        size = max(1, -(-len(entries) // (4 * n_jobs)))
+        runs = [entries[i : i + size] for i in range(0, len(entries), size)]
+        with ThreadPoolExecutor(max_workers=n_jobs) as pool:
+            loaded = [item for run in pool.map(lambda run: [load(entry) for entry in run], runs) for item in run]
     images = np.stack([img for img, _ in loaded]) if loaded else np.empty((0, *PATCH_SHAPE), np.uint8)
     digests = np.array([d for _, d in loaded])
     names = np.array([n for _, n, _, _ in entries])
