@@ -2410,9 +2410,10 @@ def test_a_full_disk_under_mine_negatives_is_exit_5_leaving_no_folder(tmp_path, 
     """Issue 45, 9: a full disk under ``mine-negatives --out`` was exit 1 and left an empty folder."""
     from PIL import Image as PILImage
 
+    clip = media.copy_packets(TEST_VIDEO, tmp_path / "clip.mp4", max_frames=4)  # the frames mined, and no more to read
     monkeypatch.setattr(PILImage.Image, "save", enospc)
     out = tmp_path / "neg"
-    code, _, err = run_main(capsys, "mine-negatives", TEST_VIDEO, "--negative-region", "0,0,1280,720", "--frames", "0-3",
+    code, _, err = run_main(capsys, "mine-negatives", clip, "--negative-region", "0,0,1280,720", "--frames", "0-3",
                             "--out", out, "--no-progress")
     assert code == 5, err
     assert [line for line in err if "No space left on device" in line] == err[-1:] and err[-1].startswith(f"{ERROR}{out}"), err
