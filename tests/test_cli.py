@@ -591,7 +591,12 @@ def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsy
 def test_refine_mirror_learns_from_the_frames_flipped_and_later_refits_keep_it(tmp_path, capsys):
     from vehicle_detection.classifier import VehicleClassifier
 
-    labels = REPO / "dev_set" / "test_images.json"  # six stills, nine cars
+    # The first of the six labelled stills, two cars: the flag's effect and its inheritance show on one as on six.
+    doc = json.loads((REPO / "dev_set" / "test_images.json").read_text())
+    doc["video"], doc["frames"] = str((REPO / "dev_set" / doc["video"]).resolve()), {"0": doc["frames"]["0"]}
+    assert len(doc["frames"]["0"]["cars"]) == 2
+    labels = tmp_path / "test1.json"
+    labels.write_text(json.dumps(doc))
     plain, mirrored, again = tmp_path / "plain.npz", tmp_path / "mirrored.npz", tmp_path / "again.npz"
     assert main(["refine", "--labels", str(labels), "--out", str(plain)]) == 0
     capsys.readouterr()
