@@ -428,11 +428,11 @@ def test_detect_current_folder(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def detected_clip(tmp_path_factory):
-    """``detect clip8.mp4`` with default outputs, run once in this process."""
+    """``detect clip4.mp4`` (4 frames, both cars boxed in each) with default outputs, run once in this process."""
     if not TEST_VIDEO.is_file():
         pytest.skip("test_video.mp4 not in the checkout")
     d = tmp_path_factory.mktemp("clip")
-    clip = cut_video(TEST_VIDEO, d / "clip8.mp4", 8)
+    clip = cut_video(TEST_VIDEO, d / "clip4.mp4", 4)
     before = sha256(clip)
     assert main(["detect", str(clip), "--no-progress", "--out-dir", str(d)]) == 0
     return clip, before
@@ -440,13 +440,13 @@ def detected_clip(tmp_path_factory):
 
 def test_detect_video_outputs(detected_clip):
     clip, before = detected_clip
-    out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
+    out, boxes = clip.with_name("clip4_detected.mp4"), clip.with_name("clip4_boxes.csv")
     assert sorted(p.name for p in clip.parent.iterdir()) == sorted([clip.name, out.name, boxes.name])
     assert sha256(clip) == before
     n_decoded = sum(1 for _ in read_frames(clip))
     info = probe_video(out)
     assert info.size == probe_video(clip).size
-    assert sum(1 for _ in read_frames(out)) == n_decoded == 8
+    assert sum(1 for _ in read_frames(out)) == n_decoded == 4
     rows = csv_rows(boxes)
     table = read_boxes_csv(boxes)
     assert len(rows) == len(table) > 0
@@ -456,7 +456,7 @@ def test_detect_video_outputs(detected_clip):
 
 def test_detect_video_second_run_needs_overwrite(detected_clip):
     clip, before = detected_clip
-    out, boxes = clip.with_name("clip8_detected.mp4"), clip.with_name("clip8_boxes.csv")
+    out, boxes = clip.with_name("clip4_detected.mp4"), clip.with_name("clip4_boxes.csv")
     outputs = {p: (sha256(p), p.stat().st_ino) for p in (out, boxes)}
     # in this process (a real process's exit 5 is test_a_real_process_exits_as_main_returns's)
     proc = run_in_process(["detect", str(clip), "--no-progress", "--out-dir", str(clip.parent)], clip.parent)
@@ -471,7 +471,7 @@ def test_detect_video_second_run_needs_overwrite(detected_clip):
     # An --out in a folder that does not exist yet: created.
     out2, boxes2 = clip.parent / "new" / "deeper" / "v.mp4", clip.parent / "other" / "v.csv"
     assert main(["detect", str(clip), "--no-progress", "--out", str(out2), "--boxes", str(boxes2)]) == 0
-    assert probe_video(out2).n_frames == 8
+    assert probe_video(out2).n_frames == 4
     assert read_boxes_csv(boxes2).frame.tolist() == read_boxes_csv(boxes).frame.tolist()
 
 
@@ -643,9 +643,9 @@ def test_mine_negatives_horizon_takes_a_fraction(tmp_path):
 
 def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
     clip, _ = detected_clip
-    table = read_boxes_csv(clip.with_name("clip8_boxes.csv"))
-    assert len(table.at_frame(5)) > 0  # both cars of the clip are tracked by frame 5
-    cars = {f: table.at_frame(f).xyxy.tolist() for f in (0, 5)}
+    table = read_boxes_csv(clip.with_name("clip4_boxes.csv"))
+    assert len(table.at_frame(0)) == len(table.at_frame(3)) == 2  # both cars of the clip, in its first frame and its last
+    cars = {f: table.at_frame(f).xyxy.tolist() for f in (0, 3)}
     cars[0].append([0, 0, 40, 40])  # a car nobody can find: one miss
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"video": clip.name, "frames": {str(f): {"cars": c} for f, c in cars.items()}}))
@@ -656,7 +656,7 @@ def test_evaluate_json_on_labels_from_detect(detected_clip, tmp_path, capsys):
     assert {"precision", "recall", "f1", "fp_per_frame"} <= set(scores)
     assert doc["files"][str(labels)]["at_iou_0.5"] == scores  # one file: the same figures, the same keys
     assert set(doc["all"]) >= {"n_frames", "n_cars", "at_iou_0.5", "at_iou_0.7"}
-    n_found = len(cars[0]) - 1 + len(cars[5])
+    n_found = len(cars[0]) - 1 + len(cars[3])
     # The same decoded frames give the same boxes: every detection matches, one car is missed.
     assert (scores["tp"], scores["fp"], scores["fn"], scores["n_frames"]) == (n_found, 0, 1, 2)
     assert scores["precision"] == 1.0 and scores["fp_per_frame"] == 0.0
