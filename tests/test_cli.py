@@ -478,14 +478,15 @@ def test_detect_video_second_run_needs_overwrite(detected_clip):
 @pytest.mark.parametrize("suffix", [".m2ts", ".ts"])
 def test_detect_mpeg_ts_video(tmp_path, capsys, suffix):
     # MPEG-2 in MPEG-TS (as camcorders and broadcast recordings write it) is a video input too.
-    clip = media.encode(tmp_path / f"cam{suffix}", media.moving_square_frames(5, 320, 180), codec="mpeg2video",
+    n = 3  # each frame is searched at 1280x720: a few are enough
+    clip = media.encode(tmp_path / f"cam{suffix}", media.moving_square_frames(n, 320, 180), codec="mpeg2video",
                         format="mpegts", container_options={"mpegts_m2ts_mode": "1"} if suffix == ".m2ts" else {})  # fmt: skip
     assert main(["detect", str(clip), "--no-progress"]) == 0
     out, boxes = Path("cam_detected.mp4"), Path("cam_boxes.csv")  # in the current folder, tmp_path
     assert capsys.readouterr().out.splitlines()[0].endswith(f"; wrote {out}, {boxes}")
     assert probe_video(out).size == (320, 180)
-    assert sum(1 for _ in read_frames(out)) == 5
-    assert all(0 <= f < 5 for f in read_boxes_csv(boxes).frame.tolist())
+    assert sum(1 for _ in read_frames(out)) == n
+    assert all(0 <= f < n for f in read_boxes_csv(boxes).frame.tolist())
 
 
 def test_readme_documents_the_exit_codes():
