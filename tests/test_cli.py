@@ -510,6 +510,15 @@ def test_readme_documents_the_exit_codes():
 # ----------------------------------------------------------------------------------------------
 
 
+def still_labels(folder: Path, frames: tuple[str, ...]) -> Path:
+    """Those frames of ``dev_set/test_images.json`` (six labelled stills, nine cars) in a labels file of ``folder``."""
+    doc = json.loads((REPO / "dev_set" / "test_images.json").read_text())
+    doc["video"], doc["frames"] = str((REPO / "dev_set" / doc["video"]).resolve()), {k: doc["frames"][k] for k in frames}
+    path = folder / f"stills_{'_'.join(frames)}.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
 @pytest.fixture(scope="module")
 def small_data(tmp_path_factory) -> Path:
     """60 patches of each class from the shared archives (read only by the runs: one folder for every train test)."""
@@ -539,10 +548,10 @@ def test_train_with_labelled_frames_adds_their_cars_and_the_box_refinement(small
     from vehicle_detection.classifier import VehicleClassifier
 
     data = small_data
-    labels = Path(__file__).resolve().parents[1] / "dev_set" / "test_images.json"
+    labels = still_labels(tmp_path, ("0", "1"))  # test1.jpg, two cars, and test2.jpg, none (one picture searched, not five)
     model = tmp_path / "m.npz"
     assert main(["train", "--data-dir", str(data), "--labels", str(labels), "--json", "--model", str(model)]) == 0
-    assert last_json(capsys.readouterr().out)["n_images"] == 120 + 12 * 9  # 9 labelled cars, 12 patches each
+    assert last_json(capsys.readouterr().out)["n_images"] == 120 + 12 * 2  # 2 labelled cars, 12 patches each
     loaded = VehicleClassifier.load(model)
     assert loaded.box_regressor is not None and loaded.metrics["box_refinement"]["labels"] == [str(labels)]
     assert loaded.metrics["box_refinement"]["alpha"] == REFINE_ALPHA
@@ -602,12 +611,7 @@ def test_refine_fits_the_box_refinement_and_keeps_the_classifier(tmp_path, capsy
 def test_refine_mirror_learns_from_the_frames_flipped_and_later_refits_keep_it(tmp_path, capsys):
     from vehicle_detection.classifier import VehicleClassifier
 
-    # The first of the six labelled stills, two cars: the flag's effect and its inheritance show on one as on six.
-    doc = json.loads((REPO / "dev_set" / "test_images.json").read_text())
-    doc["video"], doc["frames"] = str((REPO / "dev_set" / doc["video"]).resolve()), {"0": doc["frames"]["0"]}
-    assert len(doc["frames"]["0"]["cars"]) == 2
-    labels = tmp_path / "test1.json"
-    labels.write_text(json.dumps(doc))
+    labels = still_labels(tmp_path, ("0",))  # test1.jpg, two cars: the flag's effect and its inheritance show on one still as on six
     plain, mirrored, again = tmp_path / "plain.npz", tmp_path / "mirrored.npz", tmp_path / "again.npz"
     assert main(["refine", "--labels", str(labels), "--out", str(plain)]) == 0
     capsys.readouterr()
