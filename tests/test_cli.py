@@ -2,9 +2,10 @@
 
 Error paths run through ``main([...])`` in this process, stderr captured, one case after another:
 the exit code ``main`` returns (or argparse's ``SystemExit``) and the one line it prints. One case
-of each exit code, ``--debug`` and the installed console script also run as real subprocesses
-(``python -m vehicle_detection.cli``; the console script's run is the missing input's), so that
-the exit status and the exact stderr are what a shell sees, and both ways must agree. Successful runs go through ``main([...])`` too.
+of each exit code and the installed console script also run as real subprocesses (``python -m
+vehicle_detection.cli``; the console script's run is the missing input's), so that the exit status
+and the exact stderr are what a shell sees, and both ways must agree. (``--debug`` changes what
+``main`` prints, not how a process exits: it runs through ``main``.) Successful runs go through ``main([...])`` too.
 """
 
 from __future__ import annotations
@@ -250,6 +251,7 @@ def error_runs(files):
     before = {n: {p: sha256(d / p) for p in c[3]} for n, c in runnable.items()}
     listing = sorted(p.name for p in d.iterdir())
     results = {n: run_in_process(c[0], d) for n, c in runnable.items()}
+    results["--debug"] = run_in_process(["detect", "nothere.png", "--debug"], d)
     exe = shutil.which("vehicle-detection")
     with ThreadPoolExecutor(max_workers=4) as pool:
         futures = {}
@@ -261,7 +263,6 @@ def error_runs(files):
         for n in SUBPROCESS_CASES:
             if n in runnable and f"subprocess:{n}" not in futures:
                 futures[f"subprocess:{n}"] = pool.submit(run_cli, *runnable[n][0], cwd=d)
-        futures["--debug"] = pool.submit(run_cli, "detect", "nothere.png", "--debug", cwd=d)
         results |= {n: f.result() for n, f in futures.items()}
     after = {n: {p: sha256(d / p) for p in c[3]} for n, c in runnable.items()}
     return results, before, after, listing, sorted(p.name for p in d.iterdir())
