@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import warnings
+from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,15 @@ def test_a_batch_with_lanes_and_a_camera(clips, detect):
     with_lanes = next(read_frames(out / "v_detected.mp4")).astype(int)
     without = next(read_frames(plain / "v_detected.mp4")).astype(int)
     assert np.abs(with_lanes - without).max() > 100  # the lane (or "lane: not found") is drawn
+
+
+@pytest.mark.skipif(find_spec("matplotlib") is None, reason='matplotlib not installed (pip install "vehicle-detection[report]")')
+def test_a_batch_writes_each_input_s_report(clips, detect):
+    """``detect A B --out-dir o --report`` writes each input's report into o; without --lanes, no Lanes section."""
+    batch = detect(clips / "v.mp4", clips / "w.mp4", "--report", "--no-video")
+    assert sorted(p.name for p in batch.iterdir()) == ["v_boxes.csv", "v_report.html", "w_boxes.csv", "w_report.html"]
+    page = (batch / "v_report.html").read_text()
+    assert "<h2>Track timeline</h2>" in page and "<h2>Lanes</h2>" not in page
 
 
 def test_names_of_one_input_are_refused_in_a_batch(clips, tmp_path, capsys):
