@@ -45,16 +45,16 @@ def flat_camera() -> vd.Camera:
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory) -> Path:
-    """The test video's first 6 frames (``v.mp4``, boxes in every frame), its first 3 (``w.mp4``,
-    the other input of the batches: only ``v``'s tables are compared; 3 frames that ``--start 2`` leaves one of), and the camera file."""
+    """The test video's first 5 frames (``v.mp4``, boxes in every frame), its first 2 (``w.mp4``, the other
+    input of the batches: only ``v``'s tables are compared; 2 frames, of which ``--start 1`` leaves one), and the camera file."""
     d = tmp_path_factory.mktemp("clips")
     fps = probe_video(TEST_VIDEO).fps
     with vd.VideoWriter(d / "v.mp4", fps, (1280, 720), crf=18) as v, vd.VideoWriter(d / "w.mp4", fps, (1280, 720), crf=18) as w:
         for i, frame in enumerate(read_frames(TEST_VIDEO)):
-            if i == 6:
+            if i == 5:
                 break
             v.write(frame)
-            if i < 3:
+            if i < 2:
                 w.write(frame)
     flat_camera().save(d / "camera.json")
     return d
@@ -86,8 +86,8 @@ def _tables(folder: Path, stem: str) -> dict[str, bytes]:
 OPTIONS = {
     "plain": [],
     "formats": ["--format", "csv,mot,lanes", "--camera", "{camera}"],
-    "start-end": ["--start", "2", "--end", "5"],
-    "frames": ["--frames", "1-4"],
+    "start-end": ["--start", "1", "--end", "4"],  # 3 frames (in 2, no track is confirmed)
+    "frames": ["--frames", "1-3"],
     "full-search-every": ["--full-search-every", "3", "--no-video"],
     "lanes": ["--lanes", "--camera", "{camera}"],
     "lanes-from-footage": ["--lanes", "--format", "csv,lanes", "--no-video"],
@@ -109,7 +109,7 @@ def test_an_option_does_the_same_alone_and_in_a_batch(clips, detect, name):
     if "--camera" in opts:
         assert "distance_m" in table.data
     frames = set(table.frame.tolist())
-    lo, hi = {"start-end": (2, 4), "frames": (1, 4)}.get(name, (0, 5))
+    lo, hi = {"start-end": (1, 3), "frames": (1, 3)}.get(name, (0, 4))
     assert frames and min(frames) >= lo and max(frames) <= hi
 
 
