@@ -153,7 +153,7 @@ def test_training_learns_a_separable_set():
     from vehicle_detection.training.convnet import ConvNetTraining, fit_convnet
 
     rng = np.random.default_rng(6)
-    n = 256
+    n = 128  # all right and the offsets within 0.03 after 12 epochs, as with 256 patches
     patches = rng.integers(60, 120, (n, 64, 64, 3), dtype=np.uint8)
     labels = np.arange(n) % 2
     patches[labels == 1, 20:44, 12:52] = 20  # a dark block: the "vehicle"
