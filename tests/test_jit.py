@@ -6,6 +6,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 import vehicle_detection
 
 PACKAGE = Path(vehicle_detection.__file__).parent
@@ -112,7 +114,7 @@ def test_install_that_cannot_be_written_runs_help_and_detect(tmp_path):
     assert {p: p.stat().st_mtime_ns for p in site.rglob("*")} == before  # nothing written, nothing added
 
 
-def test_kernels_run_without_scipy_linalg_and_numba_finds_blas_as_it_would(tmp_path):
+def test_kernels_run_without_scipy_linalg_and_numba_finds_blas_as_it_would(tmp_path, numba_as_it_comes):
     # The search's kernels are loaded without importing scipy.linalg (compiled: the test above); numba's BLAS
     # check says what numba's own import says, and a kernel of the user's that takes BLAS
     # (np.correlate of floats) still gets it, with NumPy's result.
@@ -145,29 +147,39 @@ def test_kernels_run_without_scipy_linalg_and_numba_finds_blas_as_it_would(tmp_p
     env = {**os.environ, "NUMBA_CACHE_DIR": str(_jit.CACHE_DIR or tmp_path / "cache")}
     proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    numba_own = subprocess.run([sys.executable, "-c", "from numba.np import arraymath; print(arraymath._HAVE_BLAS)"],
-                               capture_output=True, text=True, timeout=120)
     lines = proc.stdout.split("\n")
-    assert lines[0] == f"False {numba_own.stdout.strip()}"  # no scipy.linalg; numba's own answer
+    assert lines[0] == f"False {numba_as_it_comes.split()[1]}"  # no scipy.linalg; numba's own answer
     assert lines[1] == "False"  # the finder is gone
     assert lines[2] == "True True"  # the user's BLAS kernel: NumPy's result, scipy.linalg imported for it
     assert lines[3] == "[None, 'refused here']"  # refused only to the importing thread
 
 
-def test_a_numba_that_checks_blas_otherwise_imports_as_it_comes():
+#: Imports the package's kernels with ``{check}`` as the BLAS check the hook looks for; prints whether
+#: scipy.linalg was imported, and numba's BLAS answer.
+BLAS_SCRIPT = (
+    "import sys\n"
+    "from vehicle_detection import _jit\n"
+    "_jit._BLAS_CHECK = {check!r}\n"
+    "import vehicle_detection.features\n"
+    "from numba.np import arraymath\n"
+    "print('scipy.linalg' in sys.modules, arraymath._HAVE_BLAS)\n"
+)
+
+
+def _blas_run(check: str) -> str:
+    proc = subprocess.run([sys.executable, "-c", BLAS_SCRIPT.format(check=check)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout.strip()
+
+
+@pytest.fixture(scope="module")
+def numba_as_it_comes() -> str:
+    """A check the hook does not know: the hook stands aside, numba imports its arraymath itself (scipy.linalg
+    with it) and gives its own BLAS answer, as in a process without the package (the other test of BLAS compares
+    with it)."""
+    return _blas_run("_HAVE_BLAS = _another_check()")
+
+
+def test_a_numba_that_checks_blas_otherwise_imports_as_it_comes(numba_as_it_comes):
     # The hook is used only where numba's module holds the check it was written for.
-    script = (
-        "import sys\n"
-        "from vehicle_detection import _jit\n"
-        "_jit._BLAS_CHECK = {check!r}\n"
-        "import vehicle_detection.features\n"
-        "from numba.np import arraymath\n"
-        "print('scipy.linalg' in sys.modules, arraymath._HAVE_BLAS)\n"
-    )
-    seen = []
-    for check in ("_HAVE_BLAS = _check_blas()", "_HAVE_BLAS = _another_check()"):
-        proc = subprocess.run([sys.executable, "-c", script.format(check=check)], capture_output=True, text=True,
-                              timeout=120)
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        seen.append(proc.stdout.strip())
-    assert seen == ["False True", "True True"]
+    assert [_blas_run("_HAVE_BLAS = _check_blas()"), numba_as_it_comes] == ["False True", "True True"]
