@@ -253,10 +253,10 @@ def test_test_video_distances_against_the_calibrated_camera(test_video_estimate,
 
 @pytest.mark.skipif(not CLIP_A.is_file(), reason=f"{CLIP_A} not found (the shared data)")
 def test_clip_a():
-    view, est = estimate_birds_eye_from_video(CLIP_A)
+    view, est = estimate_birds_eye_from_video(CLIP_A, max_frames=20)  # 20 of the default 60 frames, over the same 10 s
     assert view is not None, est.reason
     assert est.vanishing_point[1] / 720 == pytest.approx(0.583, abs=0.01)
-    assert len(est.frames_used) >= 40
+    assert len(est.frames_used) >= 14
 
 
 @pytest.mark.skipif(not HIGHWAY.is_file(), reason=f"{HIGHWAY} not found (the shared data; not redistributable, so not in the repository)")

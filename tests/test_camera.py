@@ -49,8 +49,14 @@ def render_chessboards(n=8, seed=0, size=SIZE, pattern=(9, 6)) -> list[np.ndarra
     return out
 
 
-def test_synthetic_calibration_recovers_the_camera():
-    cam = calibrate(render_chessboards())
+@pytest.fixture(scope="module")
+def synthetic_camera() -> Camera:
+    """``calibrate(render_chessboards())``: the camera of 8 synthetic photos, shared by the tests that need one of 640x480."""
+    return calibrate(render_chessboards())
+
+
+def test_synthetic_calibration_recovers_the_camera(synthetic_camera):
+    cam = synthetic_camera
     assert len(cam.images_used) == 8 and cam.image_size == SIZE
     assert cam.rms < 0.5
     np.testing.assert_allclose(cam.matrix[[0, 1, 0, 1], [0, 1, 2, 2]], [600, 600, 320, 240], rtol=0.03, atol=6)
@@ -90,9 +96,8 @@ def test_no_chessboard_is_refused():
         calibrate([blank, blank, blank])
 
 
-def test_json_round_trip_and_undistort(tmp_path):
-    cam = calibrate(render_chessboards(6))
-    cam = cam.replace(distortion=[-0.2, 0.05, 0.0, 0.0, 0.0])
+def test_json_round_trip_and_undistort(synthetic_camera, tmp_path):
+    cam = synthetic_camera.replace(distortion=[-0.2, 0.05, 0.0, 0.0, 0.0])
     path = cam.save(tmp_path / "camera.json")
     text = path.read_text()
     assert json.loads(text)["format"].startswith("vehicle-detection camera")
@@ -107,10 +112,9 @@ def test_json_round_trip_and_undistort(tmp_path):
     assert np.mean(np.abs(got.astype(int) - image.astype(int))) > 1.0  # and it changes the image
 
 
-def test_wrong_image_size_is_refused(tmp_path):
-    cam = calibrate(render_chessboards(4))
+def test_wrong_image_size_is_refused(synthetic_camera):
     with pytest.raises(InputError, match="calibrated for 640x480"):
-        cam.undistort(np.zeros((720, 1280, 3), np.uint8))
+        synthetic_camera.undistort(np.zeros((720, 1280, 3), np.uint8))
 
 
 def test_bad_camera_file(tmp_path):
@@ -156,9 +160,8 @@ def test_cli_calibrate_without_chessboard(tmp_path, capsys):
     assert len(err) == 1 and "no chessboard to calibrate on" in err[0]
 
 
-def test_cli_detect_refuses_camera_of_another_size(tmp_path, capsys):
-    cam = calibrate(render_chessboards(4))
-    path = cam.save(tmp_path / "camera.json")
+def test_cli_detect_refuses_camera_of_another_size(synthetic_camera, tmp_path, capsys):
+    path = synthetic_camera.save(tmp_path / "camera.json")
     img = tmp_path / "road.png"
     write_image(img, np.zeros((720, 1280, 3), np.uint8))
     assert main(["detect", str(img), "--camera", str(path), "--out", str(tmp_path / "o.png")]) == 3
@@ -180,8 +183,8 @@ def test_real_photos(calibrated_camera):
     assert 1000 < cam.matrix[0, 0] < 1300 and cam.distortion[0] < -0.1  # barrel distortion
 
 
-def test_boxes_back_to_the_original_frame():
-    cam = calibrate(render_chessboards(6)).replace(distortion=[-0.25, 0.0, 0.0, 0.0, 0.0])
+def test_boxes_back_to_the_original_frame(synthetic_camera):
+    cam = synthetic_camera.replace(distortion=[-0.25, 0.0, 0.0, 0.0, 0.0])
     box = np.array([[40.0, 30.0, 200.0, 140.0]])  # in the original (distorted) frame, near a corner
     corners = np.array([[40, 30], [200, 30], [40, 140], [200, 140]], float)
     und = cam.undistort_points(corners)
@@ -195,10 +198,9 @@ def test_boxes_back_to_the_original_frame():
     assert area < 1.4 * 160 * 110
 
 
-def test_cli_lanes_without_a_birds_eye_camera_look_at_the_image(tmp_path, capsys):
+def test_cli_lanes_without_a_birds_eye_camera_look_at_the_image(synthetic_camera, tmp_path, capsys):
     """Lanes without a bird's-eye transform estimate one from the image; a black image has no lane lines: no lanes, exit 0."""
-    cam = calibrate(render_chessboards(4))
-    path = cam.save(tmp_path / "camera.json")
+    path = synthetic_camera.save(tmp_path / "camera.json")
     img = tmp_path / "road.png"
     write_image(img, np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
     for camera in ([], ["--camera", str(path)]):

@@ -153,7 +153,7 @@ def test_training_learns_a_separable_set():
     from vehicle_detection.training.convnet import ConvNetTraining, fit_convnet
 
     rng = np.random.default_rng(6)
-    n = 256
+    n = 128  # all right and the offsets within 0.03 after 12 epochs, as with 256 patches
     patches = rng.integers(60, 120, (n, 64, 64, 3), dtype=np.uint8)
     labels = np.arange(n) % 2
     patches[labels == 1, 20:44, 12:52] = 20  # a dark block: the "vehicle"
@@ -177,13 +177,13 @@ def test_train_cli_builds_a_network_model_that_detect_runs(tmp_path, capsys):
     import json
 
     data = small_archives(tmp_path / "data", 60)
-    # The first two of the six labelled stills (two cars, and a frame without): each round's
-    # windows and hard negatives come from these frames, a third of the time of all six.
+    # The first of the six labelled stills (two cars: the edge targets; its road and trees: the
+    # hard negatives): each round's windows and hard negatives come from it, at a sixth of the time.
     repo = Path(__file__).resolve().parents[1]
     doc = json.loads((repo / "dev_set" / "test_images.json").read_text())
     doc["video"] = str(repo / "test_images")
-    doc["frames"] = {k: doc["frames"][k] for k in ("0", "1")}
-    labels = tmp_path / "two_stills.json"
+    doc["frames"] = {k: doc["frames"][k] for k in ("0",)}
+    labels = tmp_path / "one_still.json"
     labels.write_text(json.dumps(doc))
     model = tmp_path / "net.npz"
     args = ["train", "--data-dir", str(data), "--labels", str(labels), "--classifier", "convnet", "--epochs", "1",
@@ -192,7 +192,7 @@ def test_train_cli_builds_a_network_model_that_detect_runs(tmp_path, capsys):
     loaded = VehicleClassifier.load(model)
     assert loaded.convnet is not None and loaded.box_regressor is None
     record = loaded.metrics["convnet"]
-    assert record["rounds"] == 2 and record["n_box_targets"] > 0
+    assert record["rounds"] == 2 and record["n_box_targets"] > 0 and record["hard_negatives"] > 0
     assert loaded.detector_config.plan.threshold == 2.0
     scales = [s.scale for s in loaded.detector_config.plan.scales]
     assert min(scales) == 0.75 and max(scales) == 6.0

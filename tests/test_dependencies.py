@@ -50,27 +50,34 @@ def test_detecting_imports_no_plotting_library(one_detect):
     assert not set(loaded) & set(PLOTTING), loaded
 
 
-@pytest.mark.parametrize(
-    ("blocked", "code", "message"),
-    [
-        ("matplotlib", "import vehicle_detection.viz.plots",
-         'the figures (vehicle_detection.viz.plots) needs matplotlib, which is not installed: pip install "vehicle-detection[notebooks]"'),
-        ("skimage", "import numpy as np\nfrom vehicle_detection.features import FeatureConfig, hog_image\n"
-                    "hog_image(np.zeros((64, 64), np.uint8), FeatureConfig())",
-         'the HOG picture (hog_image) needs skimage, which is not installed: pip install "vehicle-detection[notebooks]"'),
-        ("pandas", "from vehicle_detection.detections import Detections\nDetections([[0, 0, 9, 9]]).to_pandas()",
-         'Detections.to_pandas() needs pandas, which is not installed: pip install "vehicle-detection[pandas]"'),
-    ],
-)
-def test_a_missing_optional_library_names_its_extra(blocked, code, message):
-    wrapped = (
-        f"import sys; sys.modules[{blocked!r}] = None\n"
-        "from vehicle_detection.errors import MissingDependencyError\n"
-        "try:\n" + "".join(f"    {line}\n" for line in code.splitlines()) +
-        "except MissingDependencyError as e:\n"
-        "    print(e)\n"
-    )
-    assert run(wrapped) == message
+#: library -> (code that needs it, the message naming its extra)
+MISSING = {
+    "matplotlib": ("import vehicle_detection.viz.plots",
+                   'the figures (vehicle_detection.viz.plots) needs matplotlib, which is not installed: pip install "vehicle-detection[notebooks]"'),
+    "skimage": ("import numpy as np\nfrom vehicle_detection.features import FeatureConfig, hog_image\n"
+                "hog_image(np.zeros((64, 64), np.uint8), FeatureConfig())",
+                'the HOG picture (hog_image) needs skimage, which is not installed: pip install "vehicle-detection[notebooks]"'),
+    "pandas": ("from vehicle_detection.detections import Detections\nDetections([[0, 0, 9, 9]]).to_pandas()",
+               'Detections.to_pandas() needs pandas, which is not installed: pip install "vehicle-detection[pandas]"'),
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def missing_messages() -> dict:
+    """One process with none of the three (as on the command-line install) runs each code in turn:
+    the message of the MissingDependencyError each raised, by library."""
+    code = (f"import json, sys\nsys.modules.update(dict.fromkeys({list(MISSING)!r}))\n"  # None: their import fails
+            "from vehicle_detection.errors import MissingDependencyError\nfound = {}\n")
+    for blocked, (needs_it, _) in MISSING.items():
+        code += ("try:\n" + "".join(f"    {line}\n" for line in needs_it.splitlines()) +
+                 f"except MissingDependencyError as e:\n    found[{blocked!r}] = str(e)\n")
+    return json.loads(run(code + "print(json.dumps(found))"))
+
+
+@pytest.mark.xdist_group(name="dependencies-missing")  # one worker makes the run
+@pytest.mark.parametrize("blocked", list(MISSING))
+def test_a_missing_optional_library_names_its_extra(blocked, missing_messages):
+    assert missing_messages.get(blocked) == MISSING[blocked][1]
 
 
 def test_pyproject_extras():

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import warnings
+from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +27,10 @@ REPO = Path(__file__).resolve().parents[1]
 TEST_VIDEO = REPO / "test_video.mp4"
 TEST_IMAGES = REPO / "test_images"
 
-pytestmark = pytest.mark.skipif(
-    not (TEST_VIDEO.is_file() and (TEST_IMAGES / "test1.jpg").is_file()), reason="test_video.mp4 or test_images/ not in the checkout"
-)
+pytestmark = [
+    pytest.mark.skipif(not (TEST_VIDEO.is_file() and (TEST_IMAGES / "test1.jpg").is_file()), reason="test_video.mp4 or test_images/ not in the checkout"),
+    pytest.mark.xdist_group(name="test_inputs"),  # one worker: the runs of `detect` below are shared by several tests
+]
 
 
 def flat_camera() -> vd.Camera:
@@ -43,34 +45,51 @@ def flat_camera() -> vd.Camera:
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory) -> Path:
-    """The test video's first 6 frames (``v.mp4``, boxes in every frame), its first 3 (``w.mp4``,
-    the other input of the batches: only ``v``'s tables are compared), and the camera file."""
+    """The test video's first 5 frames (``v.mp4``, boxes in every frame), its first 2 (``w.mp4``, the other
+    input of the batches: only ``v``'s tables are compared; 2 frames, of which ``--start 1`` leaves one), and the camera file."""
     d = tmp_path_factory.mktemp("clips")
     fps = probe_video(TEST_VIDEO).fps
     with vd.VideoWriter(d / "v.mp4", fps, (1280, 720), crf=18) as v, vd.VideoWriter(d / "w.mp4", fps, (1280, 720), crf=18) as w:
         for i, frame in enumerate(read_frames(TEST_VIDEO)):
-            if i == 6:
+            if i == 5:
                 break
             v.write(frame)
-            if i < 3:
+            if i < 2:
                 w.write(frame)
     flat_camera().save(d / "camera.json")
     return d
+
+
+@pytest.fixture(scope="module")
+def detect(clips, tmp_path_factory):
+    """``detect(*inputs_and_options)``: the folder ``detect ... --out-dir FOLDER --no-progress`` wrote into,
+    run once per module for the same arguments (several tests look at the same run; none writes into it)."""
+    runs: dict[tuple[str, ...], Path] = {}
+
+    def run(*argv) -> Path:
+        key = tuple(str(a) for a in argv)
+        if key not in runs:
+            out = tmp_path_factory.mktemp("run") / "out"
+            assert main(["detect", *key, "--out-dir", str(out), "--no-progress"]) == 0
+            runs[key] = out
+        return runs[key]
+
+    return run
 
 
 def _tables(folder: Path, stem: str) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(folder.glob(f"{stem}_*")) if p.suffix != ".mp4"}
 
 
+# --no-video alone is in "full-search-every", "lanes-from-footage", "report" and "horizon"; --camera alone,
+# in "formats" (which checks its distances too).
 OPTIONS = {
     "plain": [],
-    "no-video": ["--no-video"],
     "formats": ["--format", "csv,mot,lanes", "--camera", "{camera}"],
-    "start-end": ["--start", "2", "--end", "5"],
-    "frames": ["--frames", "1-4"],
+    "start-end": ["--start", "1", "--end", "4"],  # 3 frames (in 2, no track is confirmed)
+    "frames": ["--frames", "1-3"],
     "full-search-every": ["--full-search-every", "3", "--no-video"],
-    "camera": ["--camera", "{camera}", "--no-video"],
-    "lanes": ["--camera", "{camera}", "--lanes"],
+    "lanes": ["--lanes", "--camera", "{camera}"],
     "lanes-from-footage": ["--lanes", "--format", "csv,lanes", "--no-video"],
     "report": ["--report", "--no-video"],
     "preset-crf": ["--preset", "veryfast", "--crf", "30"],
@@ -79,11 +98,9 @@ OPTIONS = {
 
 
 @pytest.mark.parametrize("name", list(OPTIONS))
-def test_an_option_does_the_same_alone_and_in_a_batch(clips, tmp_path, name):
+def test_an_option_does_the_same_alone_and_in_a_batch(clips, detect, name):
     opts = [o.format(camera=clips / "camera.json") for o in OPTIONS[name]]
-    alone, batch = tmp_path / "alone", tmp_path / "batch"
-    assert main(["detect", str(clips / "v.mp4"), "--out-dir", str(alone), "--no-progress", *opts]) == 0
-    assert main(["detect", str(clips / "v.mp4"), str(clips / "w.mp4"), "--out-dir", str(batch), "--no-progress", *opts]) == 0
+    alone, batch = detect(clips / "v.mp4", *opts), detect(clips / "v.mp4", clips / "w.mp4", *opts)
     written = _tables(alone, "v")
     assert written and written == _tables(batch, "v")
     assert (alone / "v_detected.mp4").exists() is ("--no-video" not in opts)
@@ -92,33 +109,38 @@ def test_an_option_does_the_same_alone_and_in_a_batch(clips, tmp_path, name):
     if "--camera" in opts:
         assert "distance_m" in table.data
     frames = set(table.frame.tolist())
-    lo, hi = {"start-end": (2, 4), "frames": (1, 4)}.get(name, (0, 5))
+    lo, hi = {"start-end": (1, 3), "frames": (1, 3)}.get(name, (0, 4))
     assert frames and min(frames) >= lo and max(frames) <= hi
 
 
-def test_the_boxes_alone_without_the_video_are_those_of_the_run_with_it(clips, tmp_path):
+def test_the_boxes_alone_without_the_video_are_those_of_the_run_with_it(clips, detect, tmp_path):
     """``detect V --boxes B --no-video`` writes only B, with the boxes of the run that writes the video."""
-    only, full = tmp_path / "only", tmp_path / "full"
+    only = tmp_path / "only"
     only.mkdir()
     assert main(["detect", str(clips / "v.mp4"), "--boxes", str(only / "B.csv"), "--no-video", "--no-progress"]) == 0
     assert sorted(p.name for p in only.iterdir()) == ["B.csv"]
-    assert main(["detect", str(clips / "v.mp4"), "--out-dir", str(full), "--no-progress"]) == 0
-    assert (only / "B.csv").read_bytes() == (full / "v_boxes.csv").read_bytes()
+    full = detect(clips / "v.mp4")
+    assert (full / "v_detected.mp4").is_file() and (only / "B.csv").read_bytes() == (full / "v_boxes.csv").read_bytes()
     assert sorted(p.name for p in clips.iterdir()) == ["camera.json", "v.mp4", "w.mp4"]  # nothing beside the input
 
 
-def test_a_batch_with_lanes_and_a_camera(clips, tmp_path):
+def test_a_batch_with_lanes_and_a_camera(clips, detect):
     """``detect A.mp4 B.mp4 --out-dir o --lanes --camera C.json`` draws the lanes of each input."""
-    out = tmp_path / "o"
-    code = main(["detect", str(clips / "v.mp4"), str(clips / "w.mp4"), "--out-dir", str(out), "--lanes", "--camera",
-                 str(clips / "camera.json"), "--no-progress"])
-    assert code == 0
+    out = detect(clips / "v.mp4", clips / "w.mp4", "--lanes", "--camera", clips / "camera.json")
     assert sorted(p.name for p in out.iterdir()) == ["v_boxes.csv", "v_detected.mp4", "w_boxes.csv", "w_detected.mp4"]
-    plain = tmp_path / "plain"
-    assert main(["detect", str(clips / "v.mp4"), "--out-dir", str(plain), "--no-progress"]) == 0
+    plain = detect(clips / "v.mp4")
     with_lanes = next(read_frames(out / "v_detected.mp4")).astype(int)
     without = next(read_frames(plain / "v_detected.mp4")).astype(int)
     assert np.abs(with_lanes - without).max() > 100  # the lane (or "lane: not found") is drawn
+
+
+@pytest.mark.skipif(find_spec("matplotlib") is None, reason='matplotlib not installed (pip install "vehicle-detection[report]")')
+def test_a_batch_writes_each_input_s_report(clips, detect):
+    """``detect A B --out-dir o --report`` writes each input's report into o; without --lanes, no Lanes section."""
+    batch = detect(clips / "v.mp4", clips / "w.mp4", "--report", "--no-video")
+    assert sorted(p.name for p in batch.iterdir()) == ["v_boxes.csv", "v_report.html", "w_boxes.csv", "w_report.html"]
+    page = (batch / "v_report.html").read_text()
+    assert "<h2>Track timeline</h2>" in page and "<h2>Lanes</h2>" not in page
 
 
 def test_names_of_one_input_are_refused_in_a_batch(clips, tmp_path, capsys):

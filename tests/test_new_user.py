@@ -22,13 +22,14 @@ pytestmark = pytest.mark.skipif(
 
 
 #: Frames of the clip the video runs use (cut from test_video.mp4): two cars in each.
-CLIP_FRAMES = 8
+CLIP_FRAMES = 4
 
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory) -> Path:
     """The first CLIP_FRAMES frames of test_video.mp4 (packets copied, no re-encoding): what the
-    runs below check is the same for 8 frames as for 38, at a fifth of the cost."""
+    runs below check is the same for 4 frames as for 38 (both cars boxed from the first frame on),
+    at a tenth of the cost."""
     return media.copy_packets(TEST_VIDEO, tmp_path_factory.mktemp("clip") / "clip.mp4", max_frames=CLIP_FRAMES)
 
 
@@ -165,17 +166,17 @@ def test_coco_in_a_mixed_batch_is_written_for_the_images_and_a_glob_of_images_is
                                                      "mixed_mot.txt"]
     assert len(json.loads((out / "mixed_coco.json").read_text())["images"]) == 2
 
-    # A glob of images (a batch of single images): one COCO dataset, not one file each.
+    # A glob of images (a batch of single images): one COCO dataset, not one file each (two images, one without cars).
     shots = tmp_path / "shots"
     shots.mkdir()
-    for name in ("test1.jpg", "test2.jpg", "test3.jpg"):
+    for name in ("test1.jpg", "test2.jpg"):
         shutil.copy(TEST_IMAGES / name, shots / name)
     out2 = tmp_path / "out2"
     assert main(["detect", str(shots / "test*.jpg"), "--format", "coco", "--no-video", "--out-dir", str(out2)]) == 0
     assert sorted(p.name for p in out2.iterdir()) == ["images_coco.json"]
     doc = json.loads((out2 / "images_coco.json").read_text())
-    assert [im["file_name"] for im in doc["images"]] == [f"../shots/test{i}.jpg" for i in (1, 2, 3)]
-    assert [im["id"] for im in doc["images"]] == [1, 2, 3] and {(im["width"], im["height"]) for im in doc["images"]} == {(1280, 720)}
+    assert [im["file_name"] for im in doc["images"]] == [f"../shots/test{i}.jpg" for i in (1, 2)]
+    assert [im["id"] for im in doc["images"]] == [1, 2] and {(im["width"], im["height"]) for im in doc["images"]} == {(1280, 720)}
     detector = vd.Detector()
     for im in doc["images"]:
         expected = detector.detect_image(shots / Path(im["file_name"]).name)

@@ -44,7 +44,7 @@ def short_clip(tmp_path_factory) -> Path | None:
 
 @pytest.fixture()
 def layout(tmp_path, monkeypatch, short_clip):
-    """A data folder holding the 8-frame clip (its road plane is estimated from all; runs search 4 frames)
+    """A data folder holding the 8-frame clip (its road plane is estimated from all; runs search its first frame only)
     and an image, and an empty work folder, the current one."""
     data, work = tmp_path / "data", tmp_path / "work"
     data.mkdir()
@@ -59,7 +59,7 @@ def layout(tmp_path, monkeypatch, short_clip):
 @needs_video
 def test_default_outputs_go_to_the_current_folder_not_the_data_folder(layout, capsys):
     data, work = layout
-    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-3", "--no-progress", "--report", "--lanes", "--save-camera")
+    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-0", "--no-progress", "--report", "--lanes", "--save-camera")
     assert code == 0, err
     assert listing(data) == ["a.png", "clip.mp4"]  # nothing written into the data folder
     assert listing(work) == ["clip_boxes.csv", "clip_camera.json", "clip_detected.mp4", "clip_report.html"]
@@ -68,7 +68,7 @@ def test_default_outputs_go_to_the_current_folder_not_the_data_folder(layout, ca
 @needs_video
 def test_out_names_every_other_output_after_it_in_its_folder(layout, capsys):
     data, work = layout
-    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-3", "--no-progress", "--out", "X/run.mp4", "--format", "csv,lanes",
+    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-0", "--no-progress", "--out", "X/run.mp4", "--format", "csv,lanes",
                     "--report", "--save-camera")
     assert code == 0, err
     assert listing(work) == ["X/run.mp4", "X/run_boxes.csv", "X/run_camera.json", "X/run_lanes.csv", "X/run_report.html"]
@@ -82,11 +82,11 @@ def test_out_names_every_other_output_after_it_in_its_folder(layout, capsys):
 @needs_video
 def test_explicit_output_flags_win_and_the_camera_file_joins_the_others(layout, capsys):
     data, work = layout
-    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-3", "--no-progress", "--out-dir", "D", "--boxes", "B/b.csv",
+    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-0", "--no-progress", "--out-dir", "D", "--boxes", "B/b.csv",
                     "--save-camera", "C/c.json")
     assert code == 0, err
     assert listing(work) == ["B/b.csv", "C/c.json", "D/clip_detected.mp4"]
-    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-3", "--no-progress", "--no-video", "--out-dir", "E", "--save-camera")
+    code, err = run(capsys, "detect", data / "clip.mp4", "--frames", "0-0", "--no-progress", "--no-video", "--out-dir", "E", "--save-camera")
     assert code == 0, err
     assert listing(work / "E") == ["clip_boxes.csv", "clip_camera.json"]
 
