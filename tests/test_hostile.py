@@ -1368,6 +1368,41 @@ def test_unreachable_scheduler_is_exit_8_naming_the_address(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_scheduler_port_that_opens_late_is_waited_for():
+    """A closed port is tried again until the timeout (a scheduler started with the command is
+    still starting), and refused once the timeout has passed; the probe reads a dask greeting."""
+    import socket
+    import struct
+    import threading
+    import time
+
+    from vehicle_detection.errors import ClusterError
+    from vehicle_detection.pipeline.batch import _probe_scheduler
+
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))  # bound, not listening: a connection is refused
+        address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+        start = time.monotonic()
+        with pytest.raises(ClusterError, match="cannot be reached"):
+            _probe_scheduler(address, 0.5)
+        assert time.monotonic() - start >= 0.4  # tried until the timeout, not refused at the first try
+
+        def open_late():
+            time.sleep(0.6)
+            server.listen()
+            conn, _ = server.accept()
+            with conn:
+                conn.sendall(struct.pack("<QQ", 100, 1))  # a dask message's header: 100 bytes in 1 frame
+                time.sleep(0.2)
+
+        greeter = threading.Thread(target=open_late)
+        greeter.start()
+        start = time.monotonic()
+        _probe_scheduler(address, 30)
+        greeter.join()
+        assert 0.5 <= time.monotonic() - start < 20
+
+
 @pytest.mark.parametrize(
     ("argv", "problem"),
     [(["--scheduler", "nonsense"], "--scheduler 'nonsense': expected a dask scheduler's address"),

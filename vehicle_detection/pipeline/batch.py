@@ -579,8 +579,15 @@ def _unreachable(address: str, timeout: float) -> ClusterError:
                         "is 'dask scheduler' running there, and the port open? --scheduler-timeout waits longer)")
 
 
+#: Seconds between two tries of a scheduler's port that refused the connection.
+_RETRY_S = 0.2
+
+
 def _probe_scheduler(address: str, timeout: float) -> None:
     """Refuse, within ``timeout``, a TCP address where no dask scheduler answers.
+
+    A port that refuses the connection is tried again until ``timeout`` (a scheduler started
+    with the command is still starting), as ``dask.distributed.Client`` does.
 
     A dask scheduler greets each new connection at once with its handshake: one framed message
     (a little-endian uint64 byte count, a uint64 frame count, the frames' lengths, msgpack).
@@ -592,10 +599,16 @@ def _probe_scheduler(address: str, timeout: float) -> None:
     host, port = address[6:].rsplit(":", 1)
     host = host.strip("[]")
     deadline = time.monotonic() + timeout
-    try:
-        sock = socket.create_connection((host, int(port)), timeout=timeout)
-    except OSError:
-        raise _unreachable(address, timeout) from None
+    while True:  # a closed port is tried again until the deadline: the scheduler may be starting
+        try:
+            sock = socket.create_connection((host, int(port)), timeout=max(deadline - time.monotonic(), 0.01))
+            break
+        except ConnectionRefusedError:
+            if time.monotonic() + _RETRY_S >= deadline:
+                raise _unreachable(address, timeout) from None
+            time.sleep(_RETRY_S)
+        except OSError:
+            raise _unreachable(address, timeout) from None
     with sock:
         head = b""
         try:
