@@ -30,7 +30,6 @@ from vehicle_detection.features import extract_features
 from vehicle_detection.geometry import box_iou
 from vehicle_detection.metrics.detection import load_annotations
 from vehicle_detection.refine import crop_windows, fit_box_regressor, hot_window_targets, working_frame
-from vehicle_detection.training.fit import _searched_frames
 
 DEV = Path(__file__).resolve().parents[1] / "dev_set"
 FIT = {"project": ["clip_A.json", "test_images.json"], "dashcam": ["highway_dashcam_tune.json"]}
@@ -40,6 +39,8 @@ SCORE = {"project": ["clip_A_tracks.json", "test_video.json"], "dashcam": ["high
 def accepted_windows(model, files: list[str]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``(working frame, windows, their cars)`` of every labelled frame: the windows the search
     accepts at IoU 0.5 or more with a car, in the working frame's pixels."""
+    from vehicle_detection.training.fit import _searched_frames  # scikit-learn's import: not for --help
+
     out = []
     for frame, cars, found in _searched_frames(model, [load_annotations(DEV / f) for f in files]):
         work, f = working_frame(frame, model.detector_config.plan.reference_height)
@@ -63,6 +64,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--alpha", type=float, nargs="+", default=[1e3, 1e4], help="ridge penalties (default: 1e3 1e4)")
     args = ap.parse_args(argv)
+    from vehicle_detection.training.fit import _searched_frames  # scikit-learn's import: not for --help
+
     model = vd.load_default_model()
     samples = {cam: list(_searched_frames(model, [load_annotations(DEV / f) for f in files])) for cam, files in FIT.items()}
     scored = {cam: accepted_windows(model, files) for cam, files in SCORE.items()}
