@@ -175,32 +175,45 @@ def clip_a_tracked(clip_a_frames):
     return tracked
 
 
+@pytest.fixture(scope="module")
+def padded_tracked(clip_a_frames):
+    """Clip A's frames inside ``bars`` tracked by the saved settings or without the side fit:
+    ``(boxes, tracker state)``, each made once (the pillarbox run serves two tests)."""
+    cache = {}
+
+    def tracked(bars, no_side_fit):
+        if (bars, no_side_fit) not in cache:
+            det = Detector()
+            if no_side_fit:
+                det = Detector(config=det.config.replace(side_fit=None))
+            tracker = det.new_tracker()
+            found = Detections.concatenate(det.track([_pad(f, *bars) for f in clip_a_frames], tracker))
+            cache[bars, no_side_fit] = found, tracker.state
+        return cache[bars, no_side_fit]
+
+    return tracked
+
+
 @pytest.mark.parametrize("bars, tol", [((0, 0, 160, 160), 0), ((48, 48, 104, 104), 0), ((45, 45, 101, 101), 12)])
-def test_no_box_on_black_bars_of_a_video(clip_a_frames, clip_a_tracked, bars, tol):
+def test_no_box_on_black_bars_of_a_video(clip_a_frames, clip_a_tracked, padded_tracked, bars, tol):
     top, bottom, left, right = bars
-    det = Detector()
-    if tol:  # the heat's boxes within a cell and a half; the side fit may move them to different edges
-        det = Detector(config=det.config.replace(side_fit=None))
+    # tol: the heat's boxes within a cell and a half (without the side fit, which may move them to different edges)
     reference = clip_a_tracked(bool(tol))
-    tracker = det.new_tracker()
-    found = Detections.concatenate(det.track([_pad(f, *bars) for f in clip_a_frames], tracker))
+    found, state = padded_tracked(bars, bool(tol))
     h, w = clip_a_frames[0].shape[:2]
-    assert tracker.state.overlays.area == (left, top, left + w, top + h)
-    assert tracker.state.overlays.mask is None
+    assert state.overlays.area == (left, top, left + w, top + h)
+    assert state.overlays.mask is None
     xy = found.xyxy - [left, top, left, top]
     assert len(reference) >= 2 * len(clip_a_frames) and (xy >= 0).all()  # two cars a frame and (xy[:, [0, 2]] <= w).all() and (xy[:, [1, 3]] <= h).all()
     for i in range(len(clip_a_frames)):
         assert _same_boxes(xy[found.frame == i], reference.xyxy[reference.frame == i], tol), i
 
 
-def test_overlays_are_kept_in_the_tracker_state_across_chunks(clip_a_frames):
+def test_overlays_are_kept_in_the_tracker_state_across_chunks(padded_tracked):
     from vehicle_detection.tracker import Tracker
 
     det = Detector()
-    padded = [_pad(f, 0, 0, 160, 160) for f in clip_a_frames[:12]]
-    tracker = det.new_tracker()
-    list(det.track(padded, tracker))
-    state = tracker.state
+    _, state = padded_tracked((0, 0, 160, 160), False)  # a first chunk of 14 pillarboxed frames, measured on 12
     assert state.overlays_searched and state.overlays.area == (160, 0, 1440, 720)
     later = Tracker(det.config.tracker, state)
     assert later.state.overlays is state.overlays  # immutable: shared by copies
