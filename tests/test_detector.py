@@ -283,7 +283,7 @@ def test_cli_reports_the_bars(tmp_path, capsys, clip_a_frames):
     from vehicle_detection.io.video import VideoWriter
 
     video = tmp_path / "pillarbox.mp4"
-    with VideoWriter(video, 25, (1600, 720)) as writer:
+    with VideoWriter(video, 25, (1600, 720), preset="ultrafast") as writer:
         for frame in clip_a_frames[:12]:
             writer.write(_pad(frame, 0, 0, 160, 160))
     assert main(["detect", str(video), "--no-progress", "--no-video"]) == 0  # the facts are told without a video written
@@ -299,7 +299,7 @@ def test_cli_reports_the_cuts_between_shots(tmp_path, capsys, clip_a_frames, tes
     from vehicle_detection.io.video import VideoWriter
 
     video = tmp_path / "two_shots.mp4"
-    with VideoWriter(video, 25, (1280, 720)) as writer:
+    with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
         for frame in clip_a_frames[:12] + [test_frames[0]] * 5:
             writer.write(frame)
     assert main(["detect", str(video), "--no-progress", "--boxes", str(tmp_path / "b.csv"), "--no-video"]) == 0

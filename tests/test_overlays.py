@@ -280,21 +280,21 @@ def test_no_track_lives_on_the_windscreen_mount():
     from vehicle_detection.detections import Detections
     from vehicle_detection.detector import Detector
 
-    # The detector learns the mount on every third of the first 60 frames; the first 30 are
-    # tracked: 49 boxes with the mask, 30 on the mount without it (2026-11-29; 107 and 60 in 60 frames).
+    # The detector learns the mount on every third of the first 60 frames; the first 20 are
+    # tracked: 29 boxes with the mask, 20 on the mount without it (2026-11-29; 49 and 30 in 30 frames).
     frames = frames_of(HIGHWAY, 0, 60)
     # Heat goes to the windows themselves (the mount detector has no box refinement): the mask is
     # what is tested.
     detector = mount_detector(frames[::3])
-    frames = frames[:30]
+    frames = frames[:20]
     tracker = detector.new_tracker()
     found = Detections.concatenate(detector.track(frames, tracker))
     integral = mask_integral(tracker.state.overlays.mask)
-    assert len(found) >= 45 and (mask_share(found.xyxy, integral) <= 0.5).all()
+    assert len(found) >= 26 and (mask_share(found.xyxy, integral) <= 0.5).all()
     # Without the mask, the same detector's tracks sit on the mount.
     unmasked = Detector(detector.model, detector.config.replace(auto_overlays=False))
     before = Detections.concatenate(unmasked.track(frames))
-    assert (mask_share(before.xyxy, integral) > 0.5).sum() >= 20
+    assert (mask_share(before.xyxy, integral) > 0.5).sum() >= 13
 
 
 # --- helpers ----------------------------------------------------------------------------------
