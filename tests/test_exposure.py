@@ -115,10 +115,11 @@ def test_dark_images_are_searched_brightened(test_frames):
         dark = np.rint(frame * 0.3).astype(np.uint8)
         gain = exposure_gain(picture_level(dark), det.config.exposure)
         assert gain > 2
-        assert np.array_equal(det.windows(dark).xyxy, plain.windows(brighten(dark, gain)).xyxy)
+        windows = det.windows(dark)
+        assert np.array_equal(windows.xyxy, plain.windows(brighten(dark, gain)).xyxy)
         truth = cars[path.name]
-        for name, d in (("on", det), ("off", plain)):
-            boxes = d.detect_image(dark).xyxy
+        for name, d, w in (("on", det, windows), ("off", plain, None)):
+            boxes = d.detect_image(dark, w).xyxy
             iou = box_iou(truth, boxes) if len(boxes) and len(truth) else np.zeros((len(truth), len(boxes)))
             found[name] += int((iou.max(axis=1, initial=0) >= 0.5).sum())
             false[name] += int((iou.max(axis=0, initial=0) < 0.5).sum())

@@ -113,7 +113,7 @@ def test_video_horizon_is_kept_in_the_tracker_state_across_chunks():
     detector = Detector()
     video = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 12)]
     tracker = detector.new_tracker()
-    list(detector.track(video, tracker))
+    list(detector.track(video[:4], tracker))  # a first chunk of 4 frames, measured on all 4
     state = tracker.state
     assert state.horizon_searched and state.horizon is not None
     # A later chunk does not look again: it keeps the first chunk's horizon, whatever it sees.
@@ -344,8 +344,8 @@ def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeyp
     assert tracker.state.horizon is None and tracker.state.horizon_retry == (0, 96)
     off = Detector(config=detector.config.replace(car_horizon=None))
     tracker = off.new_tracker()
-    list(off.track([grey] * 30, tracker))
-    assert tracker.state.horizon_retry is None  # with the lines only, no second look
+    list(off.track([grey] * 25, tracker))
+    assert tracker.state.horizon_retry is None  # with the lines only, no second look (due before frame 24)
 
 
 CARS = 20  # frames of the test video after the empty road: the bands move before frame 48, its cars are confirmed by 50
