@@ -63,7 +63,7 @@ def test_estimate_on_several_workers_is_the_same():
     assert estimate_horizon([], workers=2) is None
 
 
-def _first_frames(path, n=25):
+def _read_first_frames(path, n):
     from itertools import islice
 
     from vehicle_detection.io.video import read_frames
@@ -73,6 +73,27 @@ def _first_frames(path, n=25):
         return list(islice(frames, n))
     finally:
         frames.close()
+
+
+_TEST_VIDEO_FRAMES: list = []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _test_video_frames_decoded_once():
+    """The test video's first 25 frames, which most tests here read, decoded once for the module
+    (read-only: a test that wrote into them would fail rather than change the others' input)."""
+    yield
+    _TEST_VIDEO_FRAMES.clear()
+
+
+def _first_frames(path, n=25):
+    if path != REPO / "test_video.mp4" or n > 25:
+        return _read_first_frames(path, n)
+    if not _TEST_VIDEO_FRAMES:
+        for frame in _read_first_frames(path, 25):
+            frame.flags.writeable = False
+            _TEST_VIDEO_FRAMES.append(frame)
+    return _TEST_VIDEO_FRAMES[:n]
 
 
 def test_project_camera_sits_at_the_reference_horizon(test_frames):
@@ -433,7 +454,12 @@ def test_an_image_without_lines_takes_its_horizon_from_its_cars(monkeypatch, nam
     estimate, source = detector.image_horizon(image)
     assert source == "cars" and estimate == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
     assert Detector(config=detector.config.replace(car_horizon=None)).image_horizon(image) == (None, None)
-    assert detector.image_horizon(np.full((720, 1280, 3), 90, np.uint8)) == (None, None)  # no line, no car
+
+
+def test_an_image_without_lines_or_cars_has_no_horizon(monkeypatch):
+    """An empty grey picture: no line, no car (once, not for each image above)."""
+    _without_lines(monkeypatch)
+    assert Detector().image_horizon(np.full((720, 1280, 3), 90, np.uint8)) == (None, None)
 
 
 def test_an_image_in_black_bars_reads_the_horizon_of_its_picture(monkeypatch):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from itertools import islice
 
 import cv2
@@ -83,8 +84,15 @@ def test_frames_without_bars_are_whole(test_frames, clip_a):
 
 def night(image, gain, noise, seed=0):
     """A daytime frame as a night camera might see it: dark, noisy."""
-    rng = np.random.default_rng(seed)
-    return np.clip(image * gain + rng.normal(0, noise, image.shape), 0, 255).astype(np.uint8)
+    return np.clip(image * gain + noise * _standard_normal(image.shape, seed), 0, 255).astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=2)
+def _standard_normal(shape, seed):
+    """``default_rng(seed).normal(0, s, shape)`` is ``s`` times this, drawn once for every image and ``s``."""
+    out = np.random.default_rng(seed).standard_normal(shape)
+    out.flags.writeable = False
+    return out
 
 
 def night_road(size=(1280, 720)):
