@@ -369,7 +369,7 @@ def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeyp
     assert tracker.state.horizon_retry is None  # with the lines only, no second look (due before frame 24)
 
 
-CARS = 20  # frames of the test video after the empty road: the bands move before frame 48, its cars are confirmed by 50
+CARS = 16  # frames of the test video after the empty road: the bands move before frame 48, its cars are confirmed by 50
 
 
 def _road_then_cars():
