@@ -65,10 +65,11 @@ def test_track_frames_yields_the_frames_in_order():
 def test_detect_image_on_test_frames(test_frames):
     det = Detector()
     for frame in test_frames:
-        res = det.detect_image(frame)
+        windows = det.windows(frame)
+        res = det.detect_image(frame, windows)  # searched once; the search of its own is used below
         assert isinstance(res, Detections) and res.track_id is None
         assert np.all(res.xyxy[:, [0, 2]] <= frame.shape[1]) and np.all(res.xyxy[:, [1, 3]] <= frame.shape[0])
-        assert det.heat(frame.shape, det.windows(frame)).shape == (frame.shape[0] // 8, frame.shape[1] // 8)
+        assert det.heat(frame.shape, windows).shape == (frame.shape[0] // 8, frame.shape[1] // 8)
     # test1.jpg has two cars side by side on the right: both found.
     assert len(det.detect_image(test_frames[0])) == 2
 
@@ -130,18 +131,20 @@ def test_no_box_on_black_bars_of_images(test_frames, bars, tol):
     top, bottom, left, right = bars
     det = Detector()
     compared = det if tol == 0 else Detector(config=det.config.replace(side_fit=None))
+    first = None
     for i, frame in enumerate(test_frames):
         padded = _pad(frame, *bars)
-        found = det.detect_image(padded)
+        windows = det.windows(padded)  # the side fit changes the boxes, not the windows
+        first = windows if first is None else first
+        found = det.detect_image(padded, windows)
         xy = found.xyxy - [left, top, left, top]
         assert (xy >= 0).all() and (xy[:, [0, 2]] <= 1280).all() and (xy[:, [1, 3]] <= 720).all()
-        xy = (found if compared is det else compared.detect_image(padded)).xyxy - [left, top, left, top]
+        xy = (found if compared is det else compared.detect_image(padded, windows)).xyxy - [left, top, left, top]
         assert _same_boxes(xy, _unpadded_boxes(compared, tol, i, frame), tol)
     # The search sees the picture at its own height: without the cut, letterboxed cars are smaller.
     off = Detector(config=det.config.replace(auto_overlays=False))
     if top:
-        padded = _pad(test_frames[0], *bars)
-        assert not _same_boxes(off.windows(padded).xyxy, det.windows(padded).xyxy, tol)
+        assert not _same_boxes(off.windows(_pad(test_frames[0], *bars)).xyxy, first.xyxy, tol)
 
 
 @pytest.fixture(scope="module")
@@ -175,32 +178,45 @@ def clip_a_tracked(clip_a_frames):
     return tracked
 
 
+@pytest.fixture(scope="module")
+def padded_tracked(clip_a_frames):
+    """Clip A's frames inside ``bars`` tracked by the saved settings or without the side fit:
+    ``(boxes, tracker state)``, each made once (the pillarbox run serves two tests)."""
+    cache = {}
+
+    def tracked(bars, no_side_fit):
+        if (bars, no_side_fit) not in cache:
+            det = Detector()
+            if no_side_fit:
+                det = Detector(config=det.config.replace(side_fit=None))
+            tracker = det.new_tracker()
+            found = Detections.concatenate(det.track([_pad(f, *bars) for f in clip_a_frames], tracker))
+            cache[bars, no_side_fit] = found, tracker.state
+        return cache[bars, no_side_fit]
+
+    return tracked
+
+
 @pytest.mark.parametrize("bars, tol", [((0, 0, 160, 160), 0), ((48, 48, 104, 104), 0), ((45, 45, 101, 101), 12)])
-def test_no_box_on_black_bars_of_a_video(clip_a_frames, clip_a_tracked, bars, tol):
+def test_no_box_on_black_bars_of_a_video(clip_a_frames, clip_a_tracked, padded_tracked, bars, tol):
     top, bottom, left, right = bars
-    det = Detector()
-    if tol:  # the heat's boxes within a cell and a half; the side fit may move them to different edges
-        det = Detector(config=det.config.replace(side_fit=None))
+    # tol: the heat's boxes within a cell and a half (without the side fit, which may move them to different edges)
     reference = clip_a_tracked(bool(tol))
-    tracker = det.new_tracker()
-    found = Detections.concatenate(det.track([_pad(f, *bars) for f in clip_a_frames], tracker))
+    found, state = padded_tracked(bars, bool(tol))
     h, w = clip_a_frames[0].shape[:2]
-    assert tracker.state.overlays.area == (left, top, left + w, top + h)
-    assert tracker.state.overlays.mask is None
+    assert state.overlays.area == (left, top, left + w, top + h)
+    assert state.overlays.mask is None
     xy = found.xyxy - [left, top, left, top]
     assert len(reference) >= 2 * len(clip_a_frames) and (xy >= 0).all()  # two cars a frame and (xy[:, [0, 2]] <= w).all() and (xy[:, [1, 3]] <= h).all()
     for i in range(len(clip_a_frames)):
         assert _same_boxes(xy[found.frame == i], reference.xyxy[reference.frame == i], tol), i
 
 
-def test_overlays_are_kept_in_the_tracker_state_across_chunks(clip_a_frames):
+def test_overlays_are_kept_in_the_tracker_state_across_chunks(padded_tracked):
     from vehicle_detection.tracker import Tracker
 
     det = Detector()
-    padded = [_pad(f, 0, 0, 160, 160) for f in clip_a_frames[:12]]
-    tracker = det.new_tracker()
-    list(det.track(padded, tracker))
-    state = tracker.state
+    _, state = padded_tracked((0, 0, 160, 160), False)  # a first chunk of 14 pillarboxed frames, measured on 12
     assert state.overlays_searched and state.overlays.area == (160, 0, 1440, 720)
     later = Tracker(det.config.tracker, state)
     assert later.state.overlays is state.overlays  # immutable: shared by copies
@@ -270,7 +286,7 @@ def test_cli_reports_the_bars(tmp_path, capsys, clip_a_frames):
     from vehicle_detection.io.video import VideoWriter
 
     video = tmp_path / "pillarbox.mp4"
-    with VideoWriter(video, 25, (1600, 720)) as writer:
+    with VideoWriter(video, 25, (1600, 720), preset="ultrafast") as writer:
         for frame in clip_a_frames[:12]:
             writer.write(_pad(frame, 0, 0, 160, 160))
     assert main(["detect", str(video), "--no-progress", "--no-video"]) == 0  # the facts are told without a video written
@@ -286,7 +302,7 @@ def test_cli_reports_the_cuts_between_shots(tmp_path, capsys, clip_a_frames, tes
     from vehicle_detection.io.video import VideoWriter
 
     video = tmp_path / "two_shots.mp4"
-    with VideoWriter(video, 25, (1280, 720)) as writer:
+    with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
         for frame in clip_a_frames[:12] + [test_frames[0]] * 5:
             writer.write(frame)
     assert main(["detect", str(video), "--no-progress", "--boxes", str(tmp_path / "b.csv"), "--no-video"]) == 0
@@ -359,7 +375,8 @@ def test_reported_boxes_have_their_sides_fitted_to_the_frame(default_model, test
     plain, fitted = _with_side_fit(default_model, None), _with_side_fit(default_model, SideFit())
     moved = 0
     for frame in test_frames:
-        before, after = plain.detect_image(frame), fitted.detect_image(frame)
+        windows = plain.windows(frame)  # the side fit changes the boxes, not the windows
+        before, after = plain.detect_image(frame, windows), fitted.detect_image(frame, windows)
         assert after.xyxy.tolist() == fit_sides(frame, before.xyxy, SideFit()).tolist()
         assert after.score.tolist() == before.score.tolist()
         moved += int((after.xyxy != before.xyxy).any(axis=1).sum())
@@ -504,8 +521,8 @@ def test_left_hand_traffic_finds_in_a_flipped_frame_the_flipped_windows_and_boxe
         assert np.array_equal(a.xyxy[order_a], mirrored[order_b])
         assert np.array_equal(a.score[order_a], b.score[order_b])
         assert np.array_equal(a.data["box"][order_a], mirror_boxes(b.data["box"], width)[order_b])
-        boxes = right.detect_image(frame).xyxy
-        assert sorted(boxes.tolist()) == sorted(mirror_boxes(left.detect_image(flipped).xyxy, width).tolist())
+        boxes = right.detect_image(frame, a).xyxy  # the windows found above, searched once
+        assert sorted(boxes.tolist()) == sorted(mirror_boxes(left.detect_image(flipped, b).xyxy, width).tolist())
         found += len(boxes)
     assert found >= 6
     # and right-hand traffic's search of the flipped frame is not that: the model is not symmetric

@@ -63,7 +63,7 @@ def test_estimate_on_several_workers_is_the_same():
     assert estimate_horizon([], workers=2) is None
 
 
-def _first_frames(path, n=25):
+def _read_first_frames(path, n):
     from itertools import islice
 
     from vehicle_detection.io.video import read_frames
@@ -73,6 +73,27 @@ def _first_frames(path, n=25):
         return list(islice(frames, n))
     finally:
         frames.close()
+
+
+_TEST_VIDEO_FRAMES: list = []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _test_video_frames_decoded_once():
+    """The test video's first 25 frames, which most tests here read, decoded once for the module
+    (read-only: a test that wrote into them would fail rather than change the others' input)."""
+    yield
+    _TEST_VIDEO_FRAMES.clear()
+
+
+def _first_frames(path, n=25):
+    if path != REPO / "test_video.mp4" or n > 25:
+        return _read_first_frames(path, n)
+    if not _TEST_VIDEO_FRAMES:
+        for frame in _read_first_frames(path, 25):
+            frame.flags.writeable = False
+            _TEST_VIDEO_FRAMES.append(frame)
+    return _TEST_VIDEO_FRAMES[:n]
 
 
 def test_project_camera_sits_at_the_reference_horizon(test_frames):
@@ -113,7 +134,7 @@ def test_video_horizon_is_kept_in_the_tracker_state_across_chunks():
     detector = Detector()
     video = [shifted(f, 72) for f in _first_frames(REPO / "test_video.mp4", 12)]
     tracker = detector.new_tracker()
-    list(detector.track(video, tracker))
+    list(detector.track(video[:4], tracker))  # a first chunk of 4 frames, measured on all 4
     state = tracker.state
     assert state.horizon_searched and state.horizon is not None
     # A later chunk does not look again: it keeps the first chunk's horizon, whatever it sees.
@@ -344,11 +365,11 @@ def test_a_shot_without_lines_or_cars_is_measured_again_at_twice_its_age(monkeyp
     assert tracker.state.horizon is None and tracker.state.horizon_retry == (0, 96)
     off = Detector(config=detector.config.replace(car_horizon=None))
     tracker = off.new_tracker()
-    list(off.track([grey] * 30, tracker))
-    assert tracker.state.horizon_retry is None  # with the lines only, no second look
+    list(off.track([grey] * 25, tracker))
+    assert tracker.state.horizon_retry is None  # with the lines only, no second look (due before frame 24)
 
 
-CARS = 20  # frames of the test video after the empty road: the bands move before frame 48, its cars are confirmed by 50
+CARS = 16  # frames of the test video after the empty road: the bands move before frame 48, its cars are confirmed by 50
 
 
 def _road_then_cars():
@@ -362,16 +383,23 @@ def _road_then_cars():
 
 
 @pytest.fixture(scope="module")
-def road_then_cars_run():
-    """:func:`_road_then_cars` through a detector without shot cuts whose lines give no horizon,
-    once for the tests below: ``(video, detector, boxes of each frame, tracker state)``."""
+def road_then_cars_run(tmp_path_factory):
+    """:func:`_road_then_cars` written to a video, and the video through ``process_video`` with a
+    detector without shot cuts whose lines give no horizon, reading the cars off one frame of each
+    look, once for the tests below: ``(path, decoded frames, detector, boxes, tracker state)``."""
+    from vehicle_detection.io.video import VideoWriter, read_frames
+    from vehicle_detection.pipeline import process_video
+
+    path = tmp_path_factory.mktemp("road_then_cars") / "road_then_cars.mp4"
+    with VideoWriter(path, 25, (1280, 720), preset="ultrafast") as writer:
+        for frame in _road_then_cars():
+            writer.write(frame)
     with pytest.MonkeyPatch.context() as mp:
         _without_lines(mp)
-        video = _road_then_cars()
-        detector = _quick_looks(2)
+        detector = _quick_looks(1)
         tracker = detector.new_tracker()
-        found = [f for _, f in detector.track_frames([f.copy() for f in video], tracker)]
-    return video, detector, found, tracker.state
+        whole = process_video(path, None, detector=detector, progress=False, tracker=tracker)
+    return path, list(read_frames(path)), detector, whole, tracker.state
 
 
 @pytest.mark.xdist_group(name="horizon_road_then_cars")
@@ -379,12 +407,12 @@ def test_cars_that_come_later_give_the_horizon(monkeypatch, road_then_cars_run):
     """An empty road first, then cars: the horizon is read off them when the shot is measured
     again, and the bands move there (lines give none; the camera tilted down by 0.1)."""
     _without_lines(monkeypatch)
-    video, detector, found, state = road_then_cars_run
+    _, video, detector, found, state = road_then_cars_run
     assert state.horizon_source == "cars" and state.horizon_retry is None
     assert state.horizon == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
     # measured again before frame 48 on frames 36-47: the frames after it are searched there, and
     # the test video's two cars are found in each (the plan as written finds neither)
-    assert len(found) == len(video) == 36 + CARS and all(len(f) == 2 for f in found[50:])
+    assert len(video) == 36 + CARS and all((found.frame == i).sum() == 2 for i in range(50, len(video)))
     off = Detector(config=detector.config.replace(car_horizon=None))
     assert sum(len(f) for f in off.track(video[36:])) == 0  # the cars, at the plan's bands
 
@@ -393,29 +421,24 @@ def test_cars_that_come_later_give_the_horizon(monkeypatch, road_then_cars_run):
 def test_a_second_look_reads_frames_as_decoded_not_as_drawn_on(monkeypatch, road_then_cars_run):
     """The caller draws on the frames it gets back (``process_video`` does); the frames of a
     second look at the horizon are the decoded ones all the same."""
+    from vehicle_detection.detections import Detections
+
     _without_lines(monkeypatch)
-    video, detector, clean, _ = road_then_cars_run
+    _, video, detector, clean, _ = road_then_cars_run  # process_video's run, which draws nothing without a video
     drawn = []
     for frame, found in detector.track_frames([f.copy() for f in video]):
         frame[...] = 255  # drawn over, entirely
         drawn.append(found)
-    assert sum(map(len, clean)) > 0 and all(a == b for a, b in zip(clean, drawn, strict=True))
+    assert len(clean) > 0 and len(drawn) == len(video) and Detections.concatenate(drawn) == clean
 
 
-def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, tmp_path):
-    from vehicle_detection.io.video import VideoWriter
-    from vehicle_detection.pipeline import process_video
+@pytest.mark.xdist_group(name="horizon_road_then_cars")
+def test_chunks_measure_again_as_a_whole_run_does(monkeypatch, road_then_cars_run):
     from vehicle_detection.pipeline.batch import detect_chunked
 
     _without_lines(monkeypatch)
-    video = tmp_path / "road_then_cars.mp4"
-    with VideoWriter(video, 25, (1280, 720), preset="ultrafast") as writer:
-        for frame in _road_then_cars():
-            writer.write(frame)
-    detector = _quick_looks(2)
-    tracker = detector.new_tracker()
-    whole = process_video(video, None, detector=detector, progress=False, tracker=tracker)
-    assert tracker.state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
+    video, _, detector, whole, state = road_then_cars_run  # the whole run: process_video's
+    assert state.horizon_source == "cars" and len(whole)  # found at the second look, before frame 48
     # Chunks of 10 frames start with a look pending and fewer than 12 frames before them (at 10),
     # with 12 (at 20 and 40, looks due at 24 and 48 inside them) and after the last look (at 50,
     # as the cars' tracks are confirmed): every case chunks of 20 met, and more.
@@ -431,7 +454,12 @@ def test_an_image_without_lines_takes_its_horizon_from_its_cars(monkeypatch, nam
     estimate, source = detector.image_horizon(image)
     assert source == "cars" and estimate == pytest.approx(SearchPlan().reference_horizon - 0.1, abs=0.02)
     assert Detector(config=detector.config.replace(car_horizon=None)).image_horizon(image) == (None, None)
-    assert detector.image_horizon(np.full((720, 1280, 3), 90, np.uint8)) == (None, None)  # no line, no car
+
+
+def test_an_image_without_lines_or_cars_has_no_horizon(monkeypatch):
+    """An empty grey picture: no line, no car (once, not for each image above)."""
+    _without_lines(monkeypatch)
+    assert Detector().image_horizon(np.full((720, 1280, 3), 90, np.uint8)) == (None, None)
 
 
 def test_an_image_in_black_bars_reads_the_horizon_of_its_picture(monkeypatch):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from itertools import islice
 
 import cv2
@@ -83,8 +84,15 @@ def test_frames_without_bars_are_whole(test_frames, clip_a):
 
 def night(image, gain, noise, seed=0):
     """A daytime frame as a night camera might see it: dark, noisy."""
-    rng = np.random.default_rng(seed)
-    return np.clip(image * gain + rng.normal(0, noise, image.shape), 0, 255).astype(np.uint8)
+    return np.clip(image * gain + noise * _standard_normal(image.shape, seed), 0, 255).astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=2)
+def _standard_normal(shape, seed):
+    """``default_rng(seed).normal(0, s, shape)`` is ``s`` times this, drawn once for every image and ``s``."""
+    out = np.random.default_rng(seed).standard_normal(shape)
+    out.flags.writeable = False
+    return out
 
 
 def night_road(size=(1280, 720)):
@@ -280,21 +288,21 @@ def test_no_track_lives_on_the_windscreen_mount():
     from vehicle_detection.detections import Detections
     from vehicle_detection.detector import Detector
 
-    # The detector learns the mount on every third of the first 60 frames; the first 30 are
-    # tracked: 49 boxes with the mask, 30 on the mount without it (2026-11-29; 107 and 60 in 60 frames).
+    # The detector learns the mount on every third of the first 60 frames; the first 20 are
+    # tracked: 29 boxes with the mask, 20 on the mount without it (2026-11-29; 49 and 30 in 30 frames).
     frames = frames_of(HIGHWAY, 0, 60)
     # Heat goes to the windows themselves (the mount detector has no box refinement): the mask is
     # what is tested.
     detector = mount_detector(frames[::3])
-    frames = frames[:30]
+    frames = frames[:20]
     tracker = detector.new_tracker()
     found = Detections.concatenate(detector.track(frames, tracker))
     integral = mask_integral(tracker.state.overlays.mask)
-    assert len(found) >= 45 and (mask_share(found.xyxy, integral) <= 0.5).all()
+    assert len(found) >= 26 and (mask_share(found.xyxy, integral) <= 0.5).all()
     # Without the mask, the same detector's tracks sit on the mount.
     unmasked = Detector(detector.model, detector.config.replace(auto_overlays=False))
     before = Detections.concatenate(unmasked.track(frames))
-    assert (mask_share(before.xyxy, integral) > 0.5).sum() >= 20
+    assert (mask_share(before.xyxy, integral) > 0.5).sum() >= 13
 
 
 # --- helpers ----------------------------------------------------------------------------------
