@@ -36,13 +36,18 @@ FIT = {"project": ["clip_A.json", "test_images.json"], "dashcam": ["highway_dash
 SCORE = {"project": ["clip_A_tracks.json", "test_video.json"], "dashcam": ["highway_dashcam_tune_extra.json"]}
 
 
+def searched_frames(model, files: list[str]):
+    """``(frame, its cars, the boxes found)`` of every labelled frame of ``files`` (dev_set names)."""
+    from vehicle_detection.training.fit import _searched_frames  # scikit-learn's import: not for --help
+
+    return _searched_frames(model, [load_annotations(DEV / f) for f in files])
+
+
 def accepted_windows(model, files: list[str]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``(working frame, windows, their cars)`` of every labelled frame: the windows the search
     accepts at IoU 0.5 or more with a car, in the working frame's pixels."""
-    from vehicle_detection.training.fit import _searched_frames  # scikit-learn's import: not for --help
-
     out = []
-    for frame, cars, found in _searched_frames(model, [load_annotations(DEV / f) for f in files]):
+    for frame, cars, found in searched_frames(model, files):
         work, f = working_frame(frame, model.detector_config.plan.reference_height)
         wins, theirs = hot_window_targets(np.asarray(found, np.float64).reshape(-1, 4) * f, np.asarray(cars, np.float64).reshape(-1, 4) * f, 0.5)
         if len(wins):
@@ -64,10 +69,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--alpha", type=float, nargs="+", default=[1e3, 1e4], help="ridge penalties (default: 1e3 1e4)")
     args = ap.parse_args(argv)
-    from vehicle_detection.training.fit import _searched_frames  # scikit-learn's import: not for --help
-
     model = vd.load_default_model()
-    samples = {cam: list(_searched_frames(model, [load_annotations(DEV / f) for f in files])) for cam, files in FIT.items()}
+    samples = {cam: list(searched_frames(model, files)) for cam, files in FIT.items()}
     scored = {cam: accepted_windows(model, files) for cam, files in SCORE.items()}
     for cam, items in scored.items():
         print(f"{cam} windows, as the search gives them: mean IoU %.3f, IoU >= 0.7 %.2f (%d windows)"
