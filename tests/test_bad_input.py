@@ -10,7 +10,6 @@ other connection.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json

@@ -185,7 +185,7 @@ def test_real_photos(calibrated_camera):
 
 def test_boxes_back_to_the_original_frame(synthetic_camera):
     cam = synthetic_camera.replace(distortion=[-0.25, 0.0, 0.0, 0.0, 0.0])
-    box = np.array([[40.0, 30.0, 200.0, 140.0]])  # in the original (distorted) frame, near a corner
+    # the corners of the box (40, 30, 200, 140) in the original (distorted) frame, near a corner
     corners = np.array([[40, 30], [200, 30], [40, 140], [200, 140]], float)
     und = cam.undistort_points(corners)
     und_box = [und[:, 0].min(), und[:, 1].min(), und[:, 0].max(), und[:, 1].max()]

@@ -166,7 +166,6 @@ def highway(path: Path, cache: Path | None, figure: Path | None) -> None:
     if not approaching:
         print("  no track approaches by 5 m or more")
     if figure is not None:
-        from vehicle_detection.detections import Detections
         from vehicle_detection.viz.plots import save_figure
 
         t, fr, d = max(approaching, key=lambda a: len(a[1])) if approaching else (None, None, None)
